@@ -1,0 +1,42 @@
+"""The ``guadal`` command line: a typer app assembled from ``commands/``."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import typer
+
+from . import __version__
+from .commands import map as map_cmd
+from .commands import mission as mission_cmd
+from .commands import plugins as plugins_cmd
+
+app = typer.Typer(
+    name="guadal",
+    help="Mission runner for Informative Path Planning: the same planner in sim, SITL and on real boats.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"guadal {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Optional[bool] = typer.Option(None, "--version", callback=_version, is_eager=True, help="Show the version."),
+) -> None:
+    """guadal: run, validate and compare IPP missions."""
+
+
+mission_cmd.register(app)
+plugins_cmd.register(app)
+map_cmd.register(app)
+
+
+def main() -> None:
+    app()

@@ -1,0 +1,83 @@
+"""``guadal run``, ``guadal validate``, ``guadal schema``: the mission commands."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from ..console import console, fail, print_json, print_mapping
+from ..errors import GuadalError
+from ..mission import json_schema, prepare
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("run")
+    def run(
+        mission: Path = typer.Argument(..., help="Mission YAML file."),
+        output: Optional[Path] = typer.Option(None, "--output", "-o", help="Run directory to create (must be new or empty)."),
+        seed: Optional[int] = typer.Option(None, "--seed", help="Override the mission's seed."),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
+        as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+    ) -> None:
+        """Run a mission and write its run directory."""
+        from ..runner import MissionRunner
+
+        try:
+            prep = prepare(mission, seed=seed)
+        except GuadalError as exc:
+            raise fail(exc)
+        budget = prep.mission.fleet.max_distance * prep.mission.fleet.vehicles
+        show = not (quiet or as_json)
+        progress = Progress(
+            TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.fields[status]}"),
+            TimeElapsedColumn(), console=console, disable=not show, transient=False,
+        )
+        task = progress.add_task(prep.mission.name, total=budget, status="")
+
+        def on_step(step: int, fleet) -> None:
+            progress.update(task, completed=sum(fleet.distances.values()), status=f"step {step}")
+
+        try:
+            runner = MissionRunner(prep, output=output, on_step=on_step)
+            with progress:
+                result = runner.run()
+        except KeyboardInterrupt:
+            console.print(f"[yellow]interrupted[/]: partial results kept in {runner.output}")
+            raise typer.Exit(130)
+        except GuadalError as exc:
+            raise fail(exc)
+        if as_json:
+            print_json({"directory": str(result.directory), "status": result.status, "steps": result.steps, "metrics": result.final_metrics})
+        elif not quiet:
+            print_mapping(f"{prep.mission.name}: {result.status} after {result.steps} steps", result.final_metrics)
+            console.print(f"run directory: {result.directory}")
+
+    @app.command("validate")
+    def validate(
+        mission: Path = typer.Argument(..., help="Mission YAML file."),
+        as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+    ) -> None:
+        """Check a mission completely (schema, plugins, map, positions) without running it."""
+        try:
+            prep = prepare(mission)
+        except GuadalError as exc:
+            raise fail(exc)
+        summary = {
+            "mission": prep.mission.name,
+            "environment": prep.mission.environment.type,
+            "algorithm": prep.mission.algorithm.type,
+            "mode": prep.mode,
+            "level": prep.mission.backend.level,
+            "vehicles": prep.mission.fleet.vehicles,
+            "initial_nodes": prep.initial_nodes,
+            "water_nodes": prep.graph.n_nodes,
+        }
+        print_mapping(f"{mission} is valid", summary, as_json=as_json)
+
+    @app.command("schema")
+    def schema() -> None:
+        """Print the JSON Schema of mission files (for editor completion and checks)."""
+        print_json(json_schema())

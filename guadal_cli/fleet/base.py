@@ -1,0 +1,85 @@
+"""The Fleet contract shared by every backend level.
+
+Local and remote fleets are interchangeable behind it; that interchangeability is the product.
+The runner drives a fleet one *hop* (one graph edge) at a time, exactly as the paper's loop::
+
+    while not all(reached.values()):
+        reached, done = fleet.move(targets)
+    measurements = fleet.take_measurement()
+
+so the same planner sees the same sequence of nodes at every level.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One sample: where, when and what the sensor read."""
+
+    vehicle: int
+    node: int
+    value: float
+    lat: float
+    lon: float
+    time_s: float
+
+
+#: A synthetic sensor: value at a node for a vehicle (the environment owns its randomness).
+Sensor = Callable[[int, int], float]
+
+
+class Fleet(ABC):
+    """N vehicles on one graph, each with a position, a travelled distance and a budget."""
+
+    n_vehicles: int
+
+    @abstractmethod
+    def reset(self, initial_nodes: Sequence[int]) -> None:
+        """Place vehicle ``i`` at ``initial_nodes[i]`` with zero distance travelled."""
+
+    @abstractmethod
+    def move(self, targets: Mapping[int, int]) -> tuple[dict[int, bool], dict[int, bool]]:
+        """Advance towards ``{vehicle: node}``; return ``(reached, done)`` per vehicle.
+
+        ``done`` is True for a vehicle that can no longer move (budget spent, failsafe).
+        Call again until every vehicle has reached its target or is done.
+        """
+
+    @abstractmethod
+    def take_measurement(self, vehicles: Sequence[int] | None = None) -> list[Measurement]:
+        """One sample per vehicle (default: all) at its current node."""
+
+    @property
+    @abstractmethod
+    def positions(self) -> dict[int, int]:
+        """Current node of every vehicle."""
+
+    @property
+    @abstractmethod
+    def distances(self) -> dict[int, float]:
+        """Metres travelled along the graph by every vehicle."""
+
+    @property
+    @abstractmethod
+    def max_distance(self) -> float:
+        """The distance budget of each vehicle, in metres."""
+
+    @property
+    @abstractmethod
+    def mission_time(self) -> float:
+        """Seconds since reset: simulated at ``sim``, the vehicles' clock at remote levels."""
+
+    def remaining(self) -> dict[int, float]:
+        return {v: self.max_distance - d for v, d in self.distances.items()}
+
+    def track_rows(self) -> list[dict]:
+        """GPS fixes received since the last call (remote levels); none in simulation."""
+        return []
+
+    def close(self) -> None:
+        """Release connections and processes; safe to call twice."""

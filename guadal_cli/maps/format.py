@@ -1,0 +1,239 @@
+"""The guadal map: a boolean water mask plus a georeference, in one JSON file.
+
+Format (version 1), documented for users in ``docs/map-format.md``::
+
+    {
+      "format": "guadal-map", "version": 1,
+      "name": "...", "description": "...",
+      "cell_size_m": 5.0,
+      "reference": {"row": 15, "col": 24, "lat": 37.4176, "lon": -5.9812},
+      "mask": ["0011100", "0111110", ...],      # one string per row, north first; 1 = water
+      "latlon": {"lat": [[...]], "lon": [[...]]} # optional: cell-centre coordinates per cell
+    }
+
+Rows run north to south and columns west to east. Without ``latlon`` the grid is north-up with
+square cells of ``cell_size_m`` and the reference cell's centre at the given lat/lon. With
+``latlon`` every cell centre is given (cells need not be square); ``cell_size_m`` is then the
+nominal size, and metric positions come from projecting the coordinates.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import GuadalError
+
+EARTH_RADIUS_M = 6_371_008.8
+FORMAT_NAME = "guadal-map"
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class LocalProjection:
+    """Equirectangular projection around an origin: accurate to centimetres over a lake."""
+
+    lat0: float
+    lon0: float
+
+    def to_xy(self, lat, lon):
+        lat = np.asarray(lat, dtype=float)
+        lon = np.asarray(lon, dtype=float)
+        x = np.radians(lon - self.lon0) * EARTH_RADIUS_M * math.cos(math.radians(self.lat0))
+        y = np.radians(lat - self.lat0) * EARTH_RADIUS_M
+        return x, y
+
+    def to_latlon(self, x, y):
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        lat = self.lat0 + np.degrees(y / EARTH_RADIUS_M)
+        lon = self.lon0 + np.degrees(x / (EARTH_RADIUS_M * math.cos(math.radians(self.lat0))))
+        return lat, lon
+
+
+def haversine_m(lat1, lon1, lat2, lon2):
+    """Great-circle distance in metres (for checks against GPS, not for the graph)."""
+    p1, p2 = np.radians(lat1), np.radians(lat2)
+    dphi = p2 - p1
+    dlmb = np.radians(np.asarray(lon2) - np.asarray(lon1))
+    a = np.sin(dphi / 2) ** 2 + np.cos(p1) * np.cos(p2) * np.sin(dlmb / 2) ** 2
+    return 2 * EARTH_RADIUS_M * np.arcsin(np.sqrt(a))
+
+
+@dataclass
+class Map:
+    """A water mask with coordinates for every cell centre.
+
+    ``lat``/``lon`` and ``x``/``y`` (metres east/north of the reference cell) are full grids of
+    the mask's shape, so every consumer reads positions the same way whichever georeference
+    the file used.
+    """
+
+    mask: np.ndarray  # bool, (rows, cols), True = water
+    cell_size_m: float
+    reference: dict  # {"row", "col", "lat", "lon"}
+    name: str = ""
+    description: str = ""
+    latlon_grid: tuple[np.ndarray, np.ndarray] | None = None
+    source: Path | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        self.mask = np.asarray(self.mask, dtype=bool)
+        if self.mask.ndim != 2 or self.mask.size == 0:
+            raise GuadalError("a map's mask must be a non-empty 2-D grid.")
+        if not (self.cell_size_m > 0 and math.isfinite(self.cell_size_m)):
+            raise GuadalError(f"a map's cell_size_m must be a positive number (got {self.cell_size_m}).")
+        self.projection = LocalProjection(float(self.reference["lat"]), float(self.reference["lon"]))
+        rows, cols = self.mask.shape
+        if self.latlon_grid is None:
+            rr, cc = np.mgrid[0:rows, 0:cols]
+            self.x = (cc - self.reference["col"]) * self.cell_size_m
+            self.y = -(rr - self.reference["row"]) * self.cell_size_m
+            self.lat, self.lon = self.projection.to_latlon(self.x, self.y)
+        else:
+            self.lat = np.asarray(self.latlon_grid[0], dtype=float)
+            self.lon = np.asarray(self.latlon_grid[1], dtype=float)
+            if self.lat.shape != self.mask.shape or self.lon.shape != self.mask.shape:
+                raise GuadalError(
+                    f"a map's latlon grid has shape {self.lat.shape}, but its mask is {self.mask.shape}; "
+                    "they must match."
+                )
+            self.x, self.y = self.projection.to_xy(self.lat, self.lon)
+
+    # --- derived facts -------------------------------------------------------------------
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.mask.shape)  # type: ignore[return-value]
+
+    @property
+    def water_nodes(self) -> int:
+        return int(self.mask.sum())
+
+    def cell_area_m2(self) -> np.ndarray:
+        """Area of every cell; from neighbour spacing when the grid gives coordinates."""
+        if self.latlon_grid is None:
+            return np.full(self.mask.shape, self.cell_size_m**2)
+        dx = np.abs(np.gradient(self.x, axis=1)) if self.mask.shape[1] > 1 else np.full(self.mask.shape, self.cell_size_m)
+        dy = np.abs(np.gradient(self.y, axis=0)) if self.mask.shape[0] > 1 else np.full(self.mask.shape, self.cell_size_m)
+        return dx * dy
+
+    def summary(self) -> dict:
+        water = self.mask
+        return {
+            "name": self.name,
+            "shape": list(self.shape),
+            "water_nodes": self.water_nodes,
+            "cell_size_m": round(float(self.cell_size_m), 6),
+            "area_m2": round(float(self.cell_area_m2()[water].sum()), 3),
+            "lat_bounds": [float(self.lat[water].min()), float(self.lat[water].max())] if water.any() else None,
+            "lon_bounds": [float(self.lon[water].min()), float(self.lon[water].max())] if water.any() else None,
+        }
+
+    def rowcol_of(self, lat: float, lon: float) -> tuple[int, int] | None:
+        """The cell whose centre is nearest to (lat, lon), or None if it lies off the grid."""
+        x, y = self.projection.to_xy(lat, lon)
+        if self.latlon_grid is None:
+            col = int(round(float(x) / self.cell_size_m + self.reference["col"]))
+            row = int(round(-float(y) / self.cell_size_m + self.reference["row"]))
+            if 0 <= row < self.mask.shape[0] and 0 <= col < self.mask.shape[1]:
+                return row, col
+            return None
+        d2 = (self.x - x) ** 2 + (self.y - y) ** 2
+        row, col = np.unravel_index(int(np.argmin(d2)), d2.shape)
+        if math.sqrt(float(d2[row, col])) > self.cell_size_m:
+            return None
+        return int(row), int(col)
+
+    # --- file I/O ------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        data = {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "name": self.name,
+            "description": self.description,
+            "cell_size_m": float(self.cell_size_m),
+            "reference": {
+                "row": int(self.reference["row"]),
+                "col": int(self.reference["col"]),
+                "lat": float(self.reference["lat"]),
+                "lon": float(self.reference["lon"]),
+            },
+            "mask": ["".join("1" if v else "0" for v in row) for row in self.mask],
+        }
+        if self.latlon_grid is not None:
+            data["latlon"] = {
+                "lat": [[round(float(v), 9) for v in row] for row in self.lat],
+                "lon": [[round(float(v), 9) for v in row] for row in self.lon],
+            }
+        return data
+
+    def save(self, path: str | Path) -> None:
+        """Write atomically, so a crash never leaves half a map behind."""
+        path = Path(path)
+        tmp = path.with_name(path.name + ".partial")
+        tmp.write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+        tmp.replace(path)
+
+
+def load_map(path: str | Path) -> Map:
+    """Read and check a map file; every problem is one :class:`GuadalError` sentence."""
+    path = Path(path)
+    if not path.is_file():
+        raise GuadalError(f"map file '{path}' does not exist.")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise GuadalError(f"map file '{path}' is not readable JSON ({exc}).") from exc
+    return map_from_dict(data, path)
+
+
+def map_from_dict(data: dict, path: Path | str = "<map>") -> Map:
+    where = f"map file '{path}'"
+    if not isinstance(data, dict) or data.get("format") != FORMAT_NAME:
+        raise GuadalError(f"{where} is not a guadal map: 'format' must be '{FORMAT_NAME}'.")
+    if data.get("version") != FORMAT_VERSION:
+        raise GuadalError(f"{where} has version {data.get('version')!r}; this guadal reads version {FORMAT_VERSION}.")
+    rows = data.get("mask")
+    if not isinstance(rows, list) or not rows or not all(isinstance(r, str) for r in rows):
+        raise GuadalError(f"{where}: 'mask' must be a list of strings of 0 and 1, one per row.")
+    width = len(rows[0])
+    for i, row in enumerate(rows):
+        if len(row) != width or set(row) - {"0", "1"}:
+            raise GuadalError(
+                f"{where}: mask row {i} must be {width} characters of 0 (land) and 1 (water)."
+            )
+    mask = np.array([[c == "1" for c in row] for row in rows], dtype=bool)
+    if not mask.any():
+        raise GuadalError(f"{where}: the mask has no water cell.")
+    ref = data.get("reference")
+    needed = {"row", "col", "lat", "lon"}
+    if not isinstance(ref, dict) or not needed <= set(ref):
+        raise GuadalError(f"{where}: 'reference' must give row, col, lat and lon of one cell.")
+    try:
+        lat, lon = float(ref["lat"]), float(ref["lon"])
+    except (TypeError, ValueError) as exc:
+        raise GuadalError(f"{where}: reference lat and lon must be numbers.") from exc
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise GuadalError(f"{where}: reference lat must be in [-90, 90] and lon in [-180, 180].")
+    cell = data.get("cell_size_m")
+    if not isinstance(cell, (int, float)) or not cell > 0:
+        raise GuadalError(f"{where}: 'cell_size_m' must be a positive number of metres.")
+    latlon = None
+    if "latlon" in data:
+        try:
+            latlon = (np.array(data["latlon"]["lat"], dtype=float), np.array(data["latlon"]["lon"], dtype=float))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise GuadalError(f"{where}: 'latlon' must hold 'lat' and 'lon' grids of numbers.") from exc
+    return Map(
+        mask=mask,
+        cell_size_m=float(cell),
+        reference={"row": int(ref["row"]), "col": int(ref["col"]), "lat": lat, "lon": lon},
+        name=str(data.get("name", "")),
+        description=str(data.get("description", "")),
+        latlon_grid=latlon,
+        source=Path(path) if not isinstance(path, Path) else path,
+    )

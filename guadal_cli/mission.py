@@ -1,0 +1,286 @@
+"""The mission file: typed schema, loading, and one clear sentence per bad field.
+
+A mission is validated completely before anything runs: the top-level schema here, then each
+plugin section by the plugin it names (only that plugin is imported), then the map and the
+fleet's starting positions. :func:`prepare` returns everything the runner needs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, Union
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from . import plugins
+from .errors import GuadalError, explain_validation_error
+from .graph import NavGraph
+from .maps.format import Map, load_map
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class NodePosition(_Strict):
+    node: int = Field(ge=0)
+
+
+class GridPosition(_Strict):
+    row: int
+    col: int
+
+
+class GeoPosition(_Strict):
+    lat: float = Field(ge=-90, le=90)
+    lon: float = Field(ge=-180, le=180)
+
+
+Position = Union[int, NodePosition, GridPosition, GeoPosition]
+
+
+class MapSection(_Strict):
+    path: str = Field(description="Map file (guadal map JSON), relative to the mission file.")
+
+
+class PluginSection(BaseModel):
+    """``{type: NAME, ...params}``; the plugin named validates its own params."""
+
+    model_config = ConfigDict(extra="allow")
+    type: str = Field(description="Registered plugin name, or 'module:Class'.")
+
+    def as_dict(self) -> dict:
+        return {"type": self.type, **(self.model_extra or {})}
+
+
+class AlgorithmSection(PluginSection):
+    mode: Literal["sequential", "target"] | None = Field(
+        default=None, description="Operating mode; default: the algorithm's own."
+    )
+
+    def as_dict(self) -> dict:
+        return {"type": self.type, **(self.model_extra or {})}
+
+
+class FleetSection(_Strict):
+    vehicles: int = Field(ge=1, description="Number of vehicles.")
+    initial_positions: Literal["auto"] | list[Position] = Field(
+        default="auto",
+        description="'auto' (nodes nearest the lake's centre) or one entry per vehicle: "
+        "a node id, {node}, {row, col} or {lat, lon}.",
+    )
+    max_distance: float = Field(gt=0, description="Distance budget per vehicle, metres.")
+    speed: float = Field(default=0.5, gt=0, description="Nominal speed, m/s (sets simulated time).")
+    allow_shared_nodes: bool = Field(
+        default=False, description="Allow two vehicles on the same node at the same step."
+    )
+
+
+class BackendSection(BaseModel):
+    """``level`` picks the backend plugin; its other keys are that backend's settings."""
+
+    model_config = ConfigDict(extra="allow")
+    level: str = Field(default="sim", description="sim, sitl or real (any installed backend).")
+
+
+class OutputSection(_Strict):
+    directory: str = Field(default="runs", description="Parent folder of run directories.")
+    coverage_radius: float = Field(
+        default=10.0, gt=0, description="A node counts as covered within this many metres of a sample."
+    )
+
+
+class Mission(_Strict):
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$", description="Used in run directory names.")
+    seed: int = Field(default=0, ge=0)
+    map: MapSection
+    environment: PluginSection
+    algorithm: AlgorithmSection
+    fleet: FleetSection
+    backend: BackendSection = BackendSection()
+    output: OutputSection = OutputSection()
+    max_steps: int = Field(default=100_000, ge=1, description="Safety stop on decision steps.")
+
+    @field_validator("map", mode="before")
+    @classmethod
+    def _map_shorthand(cls, value: Any):
+        return {"path": value} if isinstance(value, str) else value
+
+
+def json_schema() -> dict:
+    """JSON Schema of the mission file, for editors."""
+    schema = Mission.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "guadal mission"
+    return schema
+
+
+@dataclass
+class Prepared:
+    """A validated mission with its plugins resolved and its map loaded."""
+
+    mission: Mission
+    path: Path
+    base_dir: Path
+    map: Map
+    graph: NavGraph
+    environment_cls: type
+    environment_config: BaseModel
+    algorithm_cls: type
+    algorithm_config: BaseModel
+    mode: str
+    backend_cls: type
+    backend_config: BaseModel
+    initial_nodes: list[int]
+
+    def resolved_dict(self) -> dict:
+        """The mission as run: defaults filled in, plugin params as validated."""
+        data = self.mission.model_dump(mode="json")
+        data["environment"] = {"type": self.mission.environment.type, **self.environment_config.model_dump(mode="json")}
+        data["algorithm"] = {
+            "type": self.mission.algorithm.type,
+            "mode": self.mode,
+            **self.algorithm_config.model_dump(mode="json"),
+        }
+        data["backend"] = {"level": self.mission.backend.level, **self.backend_config.model_dump(mode="json")}
+        data["fleet"]["initial_positions"] = [{"node": n} for n in self.initial_nodes]
+        data["map"] = {"path": str(self.map.source) if self.map.source else self.mission.map.path}
+        return data
+
+
+def read_mission_file(path: Path) -> dict:
+    if not path.is_file():
+        raise GuadalError(f"{path}: mission file does not exist.")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or "invalid YAML"
+        raise GuadalError(f"{path}: malformed YAML{where}: {problem}.") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise GuadalError(f"{path}: cannot read the mission file ({exc}).") from exc
+    if not isinstance(data, dict):
+        raise GuadalError(f"{path}: a mission file must be a YAML mapping of sections (name, map, environment, ...).")
+    return data
+
+
+def parse_mission(data: dict, path: Path) -> Mission:
+    try:
+        return Mission.model_validate(data)
+    except ValidationError as exc:
+        raise GuadalError(f"{path}: {explain_validation_error(exc, Mission)}") from exc
+
+
+def resolve_initial_nodes(fleet: FleetSection, graph: NavGraph, where: str) -> list[int]:
+    """Node ids for the starting positions, checked against the map."""
+    n = fleet.vehicles
+    if n > graph.n_nodes:
+        raise GuadalError(f"{where}fleet.vehicles: {n} vehicles do not fit on {graph.n_nodes} water nodes.")
+    if fleet.initial_positions == "auto":
+        nodes = auto_positions(graph, n)
+    else:
+        if len(fleet.initial_positions) != n:
+            raise GuadalError(
+                f"{where}fleet.initial_positions: {len(fleet.initial_positions)} positions given for {n} vehicles; "
+                "give one per vehicle or 'auto'."
+            )
+        nodes = []
+        for i, pos in enumerate(fleet.initial_positions):
+            field = f"{where}fleet.initial_positions[{i}]"
+            if isinstance(pos, int) or isinstance(pos, NodePosition):
+                node = pos if isinstance(pos, int) else pos.node
+                if not 0 <= node < graph.n_nodes:
+                    raise GuadalError(f"{field}: node {node} does not exist (nodes are 0..{graph.n_nodes - 1}).")
+            elif isinstance(pos, GridPosition):
+                rows, cols = graph.map.shape
+                if not (0 <= pos.row < rows and 0 <= pos.col < cols):
+                    raise GuadalError(
+                        f"{field}: cell ({pos.row}, {pos.col}) is off the grid (rows 0..{rows - 1}, cols 0..{cols - 1})."
+                    )
+                node = graph.node_at(pos.row, pos.col)
+                if node is None:
+                    raise GuadalError(f"{field}: cell ({pos.row}, {pos.col}) is land; a vehicle must start on water.")
+            else:
+                rc = graph.map.rowcol_of(pos.lat, pos.lon)
+                if rc is None:
+                    raise GuadalError(f"{field}: ({pos.lat}, {pos.lon}) lies outside the map.")
+                node = graph.node_at(*rc)
+                if node is None:
+                    raise GuadalError(f"{field}: ({pos.lat}, {pos.lon}) is on land; a vehicle must start on water.")
+            nodes.append(int(node))
+    if not fleet.allow_shared_nodes and len(set(nodes)) != len(nodes):
+        raise GuadalError(
+            f"{where}fleet.initial_positions: two vehicles start on the same node; "
+            "give distinct positions or set fleet.allow_shared_nodes: true."
+        )
+    if not graph.same_component(nodes):
+        raise GuadalError(
+            f"{where}fleet.initial_positions: the vehicles start in separate water bodies; "
+            "all must start in one connected body of water."
+        )
+    return nodes
+
+
+def auto_positions(graph: NavGraph, n: int) -> list[int]:
+    """The nodes nearest the centre of the largest water body, like boats launched together."""
+    import numpy as np
+
+    sizes = np.bincount(graph.component)
+    body = np.nonzero(graph.component == int(np.argmax(sizes)))[0]
+    if len(body) < n:
+        raise GuadalError(f"fleet.vehicles: the largest water body has only {len(body)} nodes for {n} vehicles.")
+    centre = graph.xy[body].mean(axis=0)
+    order = body[np.lexsort((body, np.hypot(*(graph.xy[body] - centre).T)))]
+    return [int(v) for v in order[:n]]
+
+
+def prepare(path: str | Path, seed: int | None = None) -> Prepared:
+    """Load, validate and resolve a mission file; raises :class:`GuadalError` on any bad input."""
+    path = Path(path)
+    data = read_mission_file(path)
+    if seed is not None:
+        data["seed"] = seed
+    mission = parse_mission(data, path)
+    base_dir = path.resolve().parent
+    where = f"{path}: "
+    try:
+        env_cls, env_cfg = plugins.build_config("environment", mission.environment.as_dict(), "environment")
+        alg_cls, alg_cfg = plugins.build_config("algorithm", mission.algorithm.as_dict(), "algorithm")
+        backend_section = mission.backend.model_dump()
+        backend_cls, backend_cfg = plugins.build_config(
+            "backend", {"type": backend_section.pop("level"), "level": mission.backend.level, **backend_section},
+            "backend",
+        )
+    except GuadalError as exc:
+        raise GuadalError(f"{where}{exc}") from exc
+    # the level key is how the section names its plugin; backends need not declare it
+    mode = mission.algorithm.mode or alg_cls.modes[0]
+    if mode not in alg_cls.modes:
+        raise GuadalError(
+            f"{where}algorithm.mode: '{mission.algorithm.type}' supports {', '.join(alg_cls.modes)}, not '{mode}'."
+        )
+    missing = set(alg_cls.requires) - set(env_cls.provides)
+    if missing:
+        raise GuadalError(
+            f"{where}algorithm.type: '{mission.algorithm.type}' needs {', '.join(sorted(missing))} from the "
+            f"environment, which '{mission.environment.type}' does not provide "
+            f"(it provides: {', '.join(sorted(env_cls.provides)) or 'nothing'})."
+        )
+    map_path = Path(mission.map.path)
+    if not map_path.is_absolute():
+        map_path = base_dir / map_path
+    try:
+        map_ = load_map(map_path)
+    except GuadalError as exc:
+        raise GuadalError(f"{where}map.path: {exc}") from exc
+    graph = NavGraph(map_)
+    initial_nodes = resolve_initial_nodes(mission.fleet, graph, where)
+    return Prepared(
+        mission=mission, path=path, base_dir=base_dir, map=map_, graph=graph,
+        environment_cls=env_cls, environment_config=env_cfg,
+        algorithm_cls=alg_cls, algorithm_config=alg_cfg, mode=mode,
+        backend_cls=backend_cls, backend_config=backend_cfg, initial_nodes=initial_nodes,
+    )

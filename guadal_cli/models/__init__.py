@@ -1,0 +1,1 @@
+"""Field models built from measurements (the GP, and others environments may add)."""

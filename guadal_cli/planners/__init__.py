@@ -1,0 +1,1 @@
+"""Planning algorithms: one module each, all behind the contract in ``base.py``."""

@@ -1,0 +1,66 @@
+"""The Planner contract, in scikit-learn's manner.
+
+The constructor only stores the validated parameters; everything learned during a mission lives
+in attributes with a trailing underscore, created in :meth:`reset`, where the seed becomes a
+generator. A planner declares the modes it supports (the first is its default) and the
+observation fields it needs.
+
+Modes (from the paper):
+
+* ``sequential``: every vehicle gets one of its (up to 8) neighbours; the model is updated
+  after every hop.
+* ``target``: every vehicle gets any reachable node; the runner walks it there along the
+  shortest water path, measuring at every node, and updates the model once all have arrived.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import ClassVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from ..envs.base import Observation
+from ..graph import NavGraph
+
+SEQUENTIAL = "sequential"
+TARGET = "target"
+
+
+class NoParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class Planner(ABC):
+    """Chooses the next node of every vehicle that can still move."""
+
+    Config: ClassVar[type[BaseModel]] = NoParams
+    modes: ClassVar[tuple[str, ...]] = (SEQUENTIAL,)
+    requires: ClassVar[frozenset[str]] = frozenset()
+
+    def __init__(self, config: BaseModel | None = None):
+        self.config = config if config is not None else self.Config()
+
+    def reset(self, graph: NavGraph, n_vehicles: int, mode: str, seed: int) -> None:
+        """Forget the last mission; seed the generator."""
+        self.graph_ = graph
+        self.n_vehicles_ = n_vehicles
+        self.mode_ = mode
+        self.rng_ = np.random.default_rng(seed)
+
+    @abstractmethod
+    def next_targets(self, observation: Observation) -> dict[int, int]:
+        """``{vehicle: node}`` for vehicles that should move; omit a vehicle to keep it idle."""
+
+    @property
+    def done(self) -> bool:
+        """True when the planner has nothing left to do (a finished coverage, say)."""
+        return False
+
+
+def free_neighbours(observation: Observation, vehicle: int, claimed: set[int]) -> list[int]:
+    """Neighbours of a vehicle's node that no other vehicle holds or has claimed this step."""
+    node = observation.positions[vehicle]
+    blocked = claimed | {n for v, n in observation.positions.items() if v != vehicle}
+    return [n for n in observation.graph.neighbors(node) if n not in blocked]
