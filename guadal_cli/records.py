@@ -7,6 +7,7 @@ Layout (format ``guadal-run`` version 1, described for users in ``docs/run-direc
     metrics.csv             one row per step (one hop of the fleet)
     trajectory.csv          one row per vehicle per step (source=plan); GPS fixes (source=gps)
     measurements.csv        one row per sample
+    fields.csv              per node at the end: ground truth (if any) and the model's fields
 
 ``manifest.json`` says ``"status": "running"`` from the first byte; it becomes ``complete``,
 ``interrupted`` or ``failed`` at the end. A directory still saying ``running`` after its
@@ -117,6 +118,18 @@ class RunRecorder:
 
     def write_track(self, rows: list) -> None:
         self.trajectory.write(rows)
+
+    def write_fields(self, graph, ground_truth, fields: dict) -> None:
+        """Final per-node maps (truth, mean, std, ...) for reports and plots."""
+        names = (["ground_truth"] if ground_truth is not None else []) + sorted(fields)
+        columns = ["node", "row", "col", "lat", "lon", *names]
+        stream = _CsvStream(self.directory / "fields.csv", columns)
+        arrays = ([ground_truth] if ground_truth is not None else []) + [fields[k] for k in sorted(fields)]
+        stream.write(
+            [i, graph.rows[i], graph.cols[i], graph.lat[i], graph.lon[i], *(a[i] for a in arrays)]
+            for i in range(graph.n_nodes)
+        )
+        stream.close()
 
     def finish(self, status: str, error: str | None = None, extra: dict | None = None) -> None:
         for stream in (self.metrics, self.trajectory, self.measurements):

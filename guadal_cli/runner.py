@@ -147,7 +147,9 @@ class MissionRunner:
         self.recorder.write_step(self.step, row, traj, meas)
         track = fleet.track_rows()
         if track:
-            self.recorder.write_track(track)
+            self.recorder.write_track(
+                (self.step, r["vehicle"], "", "", "", r["lat"], r["lon"], "", "gps", r["time_s"]) for r in track
+            )
         self.last_metrics = row
         self.on_step(self.step, fleet)
 
@@ -257,6 +259,7 @@ class MissionRunner:
                     fleet.close()
                 finally:
                     pass
+            self.recorder.write_fields(self.graph, self.environment.ground_truth, self.environment.observation_fields())
             self.recorder.finish(status, error, extra={"final_metrics": getattr(self, "last_metrics", None)})
             if previous_term is not None:
                 signal.signal(signal.SIGTERM, previous_term)

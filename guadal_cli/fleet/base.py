@@ -78,7 +78,11 @@ class Fleet(ABC):
         return {v: self.max_distance - d for v, d in self.distances.items()}
 
     def track_rows(self) -> list[dict]:
-        """GPS fixes received since the last call (remote levels); none in simulation."""
+        """GPS fixes received since the last call (remote levels); none in simulation.
+
+        Each is ``{"vehicle": id, "lat": deg, "lon": deg, "time_s": vehicle clock}``; the runner
+        writes them to ``trajectory.csv`` with ``source=gps``.
+        """
         return []
 
     def close(self) -> None:
