@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, Union
 
+import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -134,6 +135,8 @@ class Prepared:
     backend_cls: type
     backend_config: BaseModel
     initial_nodes: list[int]
+    environment: object  # built and reset: its nested plugins and files are checked too
+    planner_seed: int
 
     def resolved_dict(self) -> dict:
         """The mission as run: defaults filled in, plugin params as validated."""
@@ -226,8 +229,6 @@ def resolve_initial_nodes(fleet: FleetSection, graph: NavGraph, where: str) -> l
 
 def auto_positions(graph: NavGraph, n: int) -> list[int]:
     """The nodes nearest the centre of the largest water body, like boats launched together."""
-    import numpy as np
-
     sizes = np.bincount(graph.component)
     body = np.nonzero(graph.component == int(np.argmax(sizes)))[0]
     if len(body) < n:
@@ -278,9 +279,16 @@ def prepare(path: str | Path, seed: int | None = None) -> Prepared:
         raise GuadalError(f"{where}map.path: {exc}") from exc
     graph = NavGraph(map_)
     initial_nodes = resolve_initial_nodes(mission.fleet, graph, where)
+    env_seed, planner_seed = (int(s) for s in np.random.SeedSequence(mission.seed).generate_state(2))
+    try:
+        environment = env_cls(env_cfg, graph, base_dir=base_dir)
+        environment.reset(env_seed)
+    except GuadalError as exc:
+        raise GuadalError(f"{where}{exc}") from exc
     return Prepared(
         mission=mission, path=path, base_dir=base_dir, map=map_, graph=graph,
         environment_cls=env_cls, environment_config=env_cfg,
         algorithm_cls=alg_cls, algorithm_config=alg_cfg, mode=mode,
         backend_cls=backend_cls, backend_config=backend_cfg, initial_nodes=initial_nodes,
+        environment=environment, planner_seed=planner_seed,
     )

@@ -93,11 +93,9 @@ class MissionRunner:
         self.graph = prep.graph
         self.output = Path(output) if output else default_run_dir(prep)
         self.on_step = on_step or (lambda step, fleet: None)
-        env_seed, planner_seed = (int(s) for s in np.random.SeedSequence(self.mission.seed).generate_state(2))
-        self.environment = prep.environment_cls(prep.environment_config, self.graph, base_dir=prep.base_dir)
-        self.environment.reset(env_seed)
+        self.environment = prep.environment
         self.planner = prep.algorithm_cls(prep.algorithm_config)
-        self.planner.reset(self.graph, self.mission.fleet.vehicles, prep.mode, planner_seed)
+        self.planner.reset(self.graph, self.mission.fleet.vehicles, prep.mode, prep.planner_seed)
         self.backend = prep.backend_cls(prep.backend_config)
         self.n = self.mission.fleet.vehicles
         self.allow_shared = self.mission.fleet.allow_shared_nodes

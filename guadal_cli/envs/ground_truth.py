@@ -63,9 +63,9 @@ class GPPriorField:
         from ..models.gp import KernelConfig, kernel_matrix
 
         k = kernel_matrix(KernelConfig(type="rbf", length_scale=self.config.length_scale), graph.xy, graph.xy)
-        # eigh is stable for the near-singular covariances of smooth kernels
-        w, q = np.linalg.eigh(k)
-        sample = q @ (np.sqrt(np.clip(w, 0, None)) * rng.standard_normal(graph.n_nodes))
+        # smooth kernels give near-singular covariances: a small jitter keeps Cholesky stable
+        k[np.diag_indices_from(k)] += 1e-6
+        sample = np.linalg.cholesky(k) @ rng.standard_normal(graph.n_nodes)
         return _normalise(sample)
 
 

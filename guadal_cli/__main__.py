@@ -1,0 +1,5 @@
+"""``python -m guadal_cli`` is ``guadal``."""
+
+from .app import main
+
+main()

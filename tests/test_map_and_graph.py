@@ -1,0 +1,106 @@
+import math
+
+import numpy as np
+import pytest
+
+from guadal_cli.errors import GuadalError
+from guadal_cli.graph import NavGraph
+from guadal_cli.maps.format import Map, haversine_m, load_map
+
+
+def l_lake() -> Map:
+    """An L of water: a vertical arm (col 0) and a horizontal arm (row 4), 5 m cells."""
+    mask = np.zeros((5, 5), dtype=bool)
+    mask[:, 0] = True
+    mask[4, :] = True
+    return Map(mask=mask, cell_size_m=5.0, reference={"row": 0, "col": 0, "lat": 37.0, "lon": -6.0})
+
+
+def test_eight_connected_with_metric_lengths():
+    g = NavGraph(Map(mask=np.ones((3, 3), bool), cell_size_m=5.0, reference={"row": 1, "col": 1, "lat": 37.0, "lon": -6.0}))
+    centre = g.node_at(1, 1)
+    assert len(g.neighbors(centre)) == 8
+    assert g.edge_length(centre, g.node_at(0, 1)) == pytest.approx(5.0)
+    assert g.edge_length(centre, g.node_at(0, 0)) == pytest.approx(5.0 * math.sqrt(2))
+    assert g.graph.nodes[centre]["lat"] == pytest.approx(37.0)
+
+
+def test_shortest_path_stays_on_water_around_the_corner():
+    g = NavGraph(l_lake())
+    top, right = g.node_at(0, 0), g.node_at(4, 4)
+    path = g.shortest_path(top, right)
+    assert all(l_lake().mask[g.rows[n], g.cols[n]] for n in path)
+    # down the arm (4 straight hops) and along the bottom (4 straight), except one diagonal at the corner
+    assert g.distance(top, right) == pytest.approx(3 * 5 + 5 * math.sqrt(2) + 3 * 5)
+
+
+def test_nearest_node_and_georeference_agree():
+    m = l_lake()
+    g = NavGraph(m)
+    n = g.node_at(4, 3)
+    assert g.nearest_node(g.lat[n], g.lon[n]) == n
+    # one cell east is 5 m on the ground
+    assert haversine_m(g.lat[g.node_at(4, 2)], g.lon[g.node_at(4, 2)], g.lat[n], g.lon[n]) == pytest.approx(5.0, rel=1e-3)
+
+
+def test_fill_graph_attribute_accepts_node_vectors_and_grids():
+    g = NavGraph(l_lake())
+    g.fill_graph_attribute("depth", np.arange(g.n_nodes, dtype=float))
+    assert g.node_attribute("depth")[3] == 3.0
+    grid = np.full((5, 5), 7.0)
+    g.fill_graph_attribute("temp", grid)
+    assert set(g.node_attribute("temp")) == {7.0}
+    with pytest.raises(GuadalError, match="needs 9 values"):
+        g.fill_graph_attribute("bad", [1.0, 2.0])
+
+
+def test_separate_water_bodies_are_separate_components():
+    mask = np.zeros((3, 7), bool)
+    mask[:, :2] = True
+    mask[:, 5:] = True
+    g = NavGraph(Map(mask=mask, cell_size_m=5, reference={"row": 0, "col": 0, "lat": 37, "lon": -6}))
+    assert g.n_components == 2
+    assert g.shortest_path(g.node_at(0, 0), g.node_at(0, 6)) == []
+
+
+def test_map_round_trip_and_shipped_maps(tmp_path):
+    m = l_lake()
+    m.name = "ell"
+    m.save(tmp_path / "ell.json")
+    back = load_map(tmp_path / "ell.json")
+    assert (back.mask == m.mask).all() and back.summary() == m.summary()
+    small = load_map("maps/urban_lake.json").summary()
+    assert small["shape"] == [30, 49] and small["water_nodes"] == 351 and small["cell_size_m"] == 5.0
+    assert load_map("maps/reservoir.json").summary()["water_nodes"] >= 5000
+
+
+def test_full_latlon_grid_maps_take_positions_from_coordinates(tmp_path):
+    lat = 37.0 + np.arange(3)[:, None] * -1e-4 + np.zeros((3, 4))
+    lon = -6.0 + np.arange(4)[None, :] * 1.2e-4 + np.zeros((3, 4))
+    m = Map(mask=np.ones((3, 4), bool), cell_size_m=10, reference={"row": 0, "col": 0, "lat": 37.0, "lon": -6.0},
+            latlon_grid=(lat, lon))
+    m.save(tmp_path / "grid.json")
+    g = NavGraph(load_map(tmp_path / "grid.json"))
+    # non-square cells: ~11.1 m north-south, ~10.6 m east-west at 37 degrees
+    assert g.edge_length(g.node_at(0, 0), g.node_at(1, 0)) == pytest.approx(11.12, abs=0.05)
+    assert g.edge_length(g.node_at(0, 0), g.node_at(0, 1)) == pytest.approx(10.65, abs=0.05)
+
+
+@pytest.mark.parametrize(
+    "content, fragment",
+    [
+        ("not json", "not readable JSON"),
+        ('{"format": "other"}', "not a guadal map"),
+        ('{"format": "guadal-map", "version": 1, "mask": ["01", "1"], "cell_size_m": 5, '
+         '"reference": {"row": 0, "col": 0, "lat": 0, "lon": 0}}', "mask row 1"),
+        ('{"format": "guadal-map", "version": 1, "mask": ["00"], "cell_size_m": 5, '
+         '"reference": {"row": 0, "col": 0, "lat": 0, "lon": 0}}', "no water"),
+        ('{"format": "guadal-map", "version": 1, "mask": ["01"], "cell_size_m": -1, '
+         '"reference": {"row": 0, "col": 0, "lat": 0, "lon": 0}}', "cell_size_m"),
+    ],
+)
+def test_bad_map_files_get_one_sentence(tmp_path, content, fragment):
+    path = tmp_path / "bad.json"
+    path.write_text(content)
+    with pytest.raises(GuadalError, match=fragment):
+        load_map(path)
