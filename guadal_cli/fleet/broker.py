@@ -1,0 +1,222 @@
+"""An MQTT broker for the sitl stack: Mosquitto where installed, else an embedded one.
+
+Both run as a separate process on a private port, so a stack (or a test) never shares a broker
+with anything else and can kill and restart it on the same port. The embedded broker is amqtt
+(a pure-Python asyncio MQTT 3.1.1 broker), so a fresh ``pip install guadal`` still runs the
+SITL demo on a machine without Mosquitto. Run it alone with
+``python -m guadal_cli.fleet.broker --port 1883``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import GuadalError
+
+BROKER_KINDS = ("auto", "mosquitto", "embedded")
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port nobody listens on right now (the OS picks it)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind((host, 0))
+        return int(sock.getsockname()[1])
+
+
+def mosquitto_binary() -> str | None:
+    """Path of the ``mosquitto`` executable, if any (PATH first, then the usual sbin)."""
+    return shutil.which("mosquitto") or next(
+        (p for p in ("/usr/sbin/mosquitto", "/usr/local/sbin/mosquitto") if os.access(p, os.X_OK)), None
+    )
+
+
+def port_accepts(host: str, port: int) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
+@dataclass
+class BrokerProcess:
+    """A broker we started: where it listens and how to stop it."""
+
+    kind: str
+    host: str
+    port: int
+    process: subprocess.Popen | None = None
+    workdir: Path | None = None
+    log_path: Path | None = None
+    _own_workdir: bool = field(default=False, repr=False)
+
+    @property
+    def url(self) -> str:
+        return f"mqtt://{self.host}:{self.port}"
+
+    @property
+    def pid(self) -> int | None:
+        return self.process.pid if self.process else None
+
+    def alive(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    def stop(self, grace: float = 3.0) -> None:
+        """SIGTERM, then SIGKILL after ``grace`` seconds; safe to call twice."""
+        if self.process is not None:
+            stop_process(self.process, grace)
+        if self._own_workdir and self.workdir is not None:
+            shutil.rmtree(self.workdir, ignore_errors=True)
+            self._own_workdir = False
+
+    def kill(self) -> None:
+        """Abrupt death (SIGKILL), as a crashed broker or a pulled cable."""
+        if self.alive():
+            self.process.kill()
+            self.process.wait(5)
+
+
+def stop_process(process: subprocess.Popen, grace: float = 3.0) -> None:
+    if process.poll() is not None:
+        return
+    process.send_signal(signal.SIGTERM)
+    try:
+        process.wait(grace)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(5)
+
+
+def wait_until_listening(host: str, port: int, process: subprocess.Popen, timeout: float, what: str, log: Path | None) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            tail = log.read_text(errors="replace").strip().splitlines()[-3:] if log and log.exists() else []
+            raise GuadalError(f"the {what} exited with code {process.returncode} before listening on port {port}"
+                              + (f" ({' / '.join(tail)})." if tail else "."))
+        if port_accepts(host, port):
+            return
+        time.sleep(0.05)
+    stop_process(process)
+    raise GuadalError(f"the {what} did not listen on {host}:{port} within {timeout:g} s.")
+
+
+def start_broker(
+    kind: str = "auto",
+    host: str = "127.0.0.1",
+    port: int = 0,
+    workdir: str | Path | None = None,
+    timeout: float = 10.0,
+    detach: bool = False,
+) -> BrokerProcess:
+    """Start a private broker and return once it accepts connections.
+
+    ``kind``: ``mosquitto``, ``embedded`` or ``auto`` (Mosquitto if installed). ``port`` 0 picks a
+    free one. ``detach`` starts it in its own session so it outlives the caller (``guadal stack up``).
+    """
+    if kind not in BROKER_KINDS:
+        raise GuadalError(f"broker kind '{kind}' is unknown (allowed: {', '.join(BROKER_KINDS)}).")
+    binary = mosquitto_binary()
+    if kind == "mosquitto" and binary is None:
+        raise GuadalError("broker 'mosquitto' was asked for, but no mosquitto executable is installed; use 'embedded'.")
+    chosen = "mosquitto" if (kind == "mosquitto" or (kind == "auto" and binary)) else "embedded"
+    port = int(port) or free_port(host)
+    own = workdir is None
+    wd = Path(tempfile.mkdtemp(prefix="guadal-broker-")) if own else Path(workdir)
+    wd.mkdir(parents=True, exist_ok=True)
+    log_path = wd / f"broker-{port}.log"
+    if chosen == "mosquitto":
+        conf = wd / f"mosquitto-{port}.conf"
+        conf.write_text(
+            f"listener {port} {host}\nallow_anonymous true\npersistence false\n"
+            f"max_packet_size 65536\nlog_dest stderr\nlog_type error\nlog_type warning\n"
+        )
+        cmd = [binary, "-c", str(conf)]
+    else:
+        cmd = [sys.executable, "-m", "guadal_cli.fleet.broker", "--host", host, "--port", str(port)]
+    with open(log_path, "ab") as log:
+        process = subprocess.Popen(
+            cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, start_new_session=detach
+        )
+    broker = BrokerProcess(chosen, host, port, process, wd, log_path, _own_workdir=own)
+    try:
+        wait_until_listening(host, port, process, timeout, f"{chosen} broker", log_path)
+    except BaseException:
+        broker.stop()
+        raise
+    return broker
+
+
+# --- the embedded broker process ------------------------------------------------------------
+def _amqtt_config(host: str, port: int) -> dict:
+    return {
+        "listeners": {"default": {"type": "tcp", "bind": f"{host}:{port}", "max_connections": 256}},
+        # a client silent for keepalive + 2 s is dropped (and its will published): see _expire_silent
+        "timeout_disconnect_delay": 2,
+        # no $SYS tree, anonymous clients, every topic allowed: a private broker for one stack
+        "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
+    }
+
+
+def _expire_silent_clients() -> None:
+    """Make amqtt drop a client whose keepalive ran out (MQTT 3.1.1 §3.1.2.10).
+
+    amqtt notices the read timeout but does nothing with it, so a bridge whose link died
+    without a FIN would stay "online" for ever; closing the session publishes its will.
+    """
+    import asyncio
+
+    from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
+
+    def expire(handler) -> None:
+        asyncio.get_running_loop().create_task(handler.handle_connection_closed())
+
+    BrokerProtocolHandler.handle_read_timeout = expire
+
+
+def run_embedded(host: str, port: int) -> None:
+    """Serve until SIGTERM/SIGINT (blocking)."""
+    import asyncio
+    import logging
+
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    for name in ("amqtt", "transitions"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    from amqtt.broker import Broker
+
+    _expire_silent_clients()
+
+    async def serve() -> None:
+        broker = Broker(_amqtt_config(host, port))
+        await broker.start()
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, stop.set)
+        print(f'{{"ready": true, "url": "mqtt://{host}:{port}"}}', flush=True)
+        await stop.wait()
+        await broker.shutdown()
+
+    asyncio.run(serve())
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m guadal_cli.fleet.broker", description="guadal's embedded MQTT broker")
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--port", type=int, default=1883)
+    args = parser.parse_args(argv)
+    run_embedded(args.host, args.port)
+
+
+if __name__ == "__main__":
+    main()

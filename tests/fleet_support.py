@@ -1,0 +1,68 @@
+"""Helpers for the remote-level tests: a real paho client that records what it receives."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import paho.mqtt.client as mqtt
+
+
+class Inbox:
+    """A connected paho client whose received messages can be waited on (no sleeps)."""
+
+    def __init__(self, port: int, host: str = "127.0.0.1", client_id: str = "", keepalive: int = 60, will=None):
+        self.messages: list[mqtt.MQTTMessage] = []
+        self._cond = threading.Condition()
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id)
+        self.client.on_message = self._on_message
+        self.client.on_connect = lambda *a: self._notify()
+        if will:
+            self.client.will_set(*will)
+        self.client.connect(host, port, keepalive=keepalive)
+        self.client.loop_start()
+        self.wait(self.client.is_connected, 10, "the test client did not connect")
+
+    def _notify(self):
+        with self._cond:
+            self._cond.notify_all()
+
+    def _on_message(self, client, userdata, msg):
+        with self._cond:
+            self.messages.append(msg)
+            self._cond.notify_all()
+
+    def wait(self, predicate, timeout: float, what: str):
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not predicate():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise AssertionError(f"{what} within {timeout} s")
+                self._cond.wait(min(left, 0.1))
+        return predicate()
+
+    def subscribe(self, *topics: str, qos: int = 1) -> None:
+        done = threading.Event()
+        self.client.on_subscribe = lambda *a: done.set()
+        self.client.subscribe([(t, qos) for t in topics])
+        assert done.wait(10), "the broker did not acknowledge the subscription"
+
+    def on(self, topic: str) -> list[mqtt.MQTTMessage]:
+        return [m for m in self.messages if m.topic == topic]
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+def wait_for(predicate, timeout: float, what: str, interval: float = 0.05):
+    """Poll a condition until it holds; fail with ``what`` after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} within {timeout} s")
+        time.sleep(interval)
