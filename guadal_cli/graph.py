@@ -57,6 +57,7 @@ class NavGraph:
             tuple(int(v) for v in self.adjacency.indices[self.adjacency.indptr[i] : self.adjacency.indptr[i + 1]])
             for i in range(self.n_nodes)
         ]
+        self._edge_length = {(int(a), int(b)): float(w) for a, b, w in zip(src_a, dst_a, w_a)}
         self.n_components, self.component = connected_components(self.adjacency, directed=False)
         self._tree = cKDTree(self.xy)
 
@@ -92,7 +93,8 @@ class NavGraph:
         return self._neighbors[node]
 
     def edge_length(self, a: int, b: int) -> float:
-        return float(self.adjacency[a, b])
+        """Metres between two neighbouring nodes (KeyError if they are not neighbours)."""
+        return self._edge_length[(a, b)]
 
     # --- paths ---------------------------------------------------------------------------
     def _dijkstra_from(self, source: int):
@@ -116,6 +118,8 @@ class NavGraph:
         """
         if a == b:
             return [a]
+        if not avoid and (a, b) in self._edge_length:
+            return [a, b]  # neighbours: one edge is always the shortest way
         if avoid:
             keep = np.ones(self.n_nodes, dtype=bool)
             keep[list(avoid - {a, b})] = False

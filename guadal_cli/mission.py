@@ -136,6 +136,7 @@ class Prepared:
     backend_config: BaseModel
     initial_nodes: list[int]
     environment: object  # built and reset: its nested plugins and files are checked too
+    environment_seed: int
     planner_seed: int
 
     def resolved_dict(self) -> dict:
@@ -290,5 +291,5 @@ def prepare(path: str | Path, seed: int | None = None) -> Prepared:
         environment_cls=env_cls, environment_config=env_cfg,
         algorithm_cls=alg_cls, algorithm_config=alg_cfg, mode=mode,
         backend_cls=backend_cls, backend_config=backend_cfg, initial_nodes=initial_nodes,
-        environment=environment, planner_seed=planner_seed,
+        environment=environment, environment_seed=env_seed, planner_seed=planner_seed,
     )

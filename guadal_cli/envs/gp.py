@@ -67,7 +67,7 @@ class GPEnvironment(Environment):
 
     def update(self, measurements: Sequence[Measurement]) -> None:
         for m in measurements:
-            self.model.add(self.graph.xy[m.node], m.value)
+            self.model.add(self.graph.xy[m.node], m.value, point=m.node)
         self._updates += 1
         if self.config.fit_every and self._updates % self.config.fit_every == 0:
             self.model.fit_hyperparameters()

@@ -6,7 +6,9 @@ Cholesky factor ``L`` of the training covariance grows by one row per sample, an
 
     mean = m + V^T z        var = k(x, x) - sum(V^2, axis=0)
 
-and a new sample changes both by one rank-one term: O(n^2 + n N) per sample, no refit. The
+and a new sample changes both by one rank-one term: O(n N) per sample, no refit. When the
+sample lies on a prediction point (vehicles sample at graph nodes) the new row of ``L`` is
+already a column of ``V``, so not even a triangular solve is needed. The
 result equals scikit-learn's ``GaussianProcessRegressor`` with the same kernel, ``alpha`` equal
 to the noise variance and the optimizer off (``bench/`` checks this to 1e-6).
 
@@ -80,8 +82,8 @@ class IncrementalGP:
         self._L = np.zeros((self._cap, self._cap))
         self._V = np.zeros((self._cap, n_points))
         self._z = np.zeros(self._cap)
-        self.X_ = np.zeros((0, 2))
-        self.y_ = np.zeros(0)
+        self._X = np.zeros((self._cap, 2))
+        self._y = np.zeros(self._cap)
         self.n_ = 0
         self._mean_delta = np.zeros(n_points)
         self._var = np.full(n_points, self.kernel.variance)
@@ -94,10 +96,27 @@ class IncrementalGP:
         V[: self._cap] = self._V
         z = np.zeros(cap)
         z[: self._cap] = self._z
-        self._L, self._V, self._z, self._cap = L, V, z, cap
+        X = np.zeros((cap, 2))
+        X[: self._cap] = self._X
+        y = np.zeros(cap)
+        y[: self._cap] = self._y
+        self._L, self._V, self._z, self._X, self._y, self._cap = L, V, z, X, y, cap
 
-    def add(self, x: np.ndarray, y: float) -> None:
-        """Condition on one observation ``y`` at location ``x`` (metres)."""
+    @property
+    def X_(self) -> np.ndarray:
+        """Sample locations so far (metres)."""
+        return self._X[: self.n_]
+
+    @property
+    def y_(self) -> np.ndarray:
+        """Sample values so far."""
+        return self._y[: self.n_]
+
+    def add(self, x: np.ndarray, y: float, point: int | None = None) -> None:
+        """Condition on one observation ``y`` at location ``x`` (metres).
+
+        ``point``: index of the prediction point the sample lies on, if any (the fast path).
+        """
         x = np.asarray(x, dtype=float).reshape(1, 2)
         n = self.n_
         if n == self._cap:
@@ -105,8 +124,11 @@ class IncrementalGP:
         k_star = kernel_matrix(self.kernel, x, self.points)[0]
         k_xx = self.kernel.variance + self.kernel.noise
         if n:
-            k_x = kernel_matrix(self.kernel, x, self.X_)[0]
-            l = solve_triangular(self._L[:n, :n], k_x, lower=True, check_finite=False)
+            if point is not None:
+                l = self._V[:n, point].copy()  # L^-1 k(X, x) is V's column for that point
+            else:
+                k_x = kernel_matrix(self.kernel, x, self.X_)[0]
+                l = solve_triangular(np.ascontiguousarray(self._L[:n, :n]), k_x, lower=True, check_finite=False)
             d2 = k_xx - l @ l
             v = k_star - l @ self._V[:n]
             z_prev = l @ self._z[:n]
@@ -124,13 +146,15 @@ class IncrementalGP:
         self._z[n] = z_n
         self._mean_delta += v * z_n
         self._var -= v * v
-        self.X_ = np.vstack([self.X_, x])
-        self.y_ = np.append(self.y_, y)
+        self._X[n] = x[0]
+        self._y[n] = y
         self.n_ = n + 1
 
-    def add_many(self, xs: np.ndarray, ys) -> None:
-        for x, y in zip(np.asarray(xs, dtype=float).reshape(-1, 2), ys):
-            self.add(x, float(y))
+    def add_many(self, xs: np.ndarray, ys, points=None) -> None:
+        xs = np.asarray(xs, dtype=float).reshape(-1, 2)
+        points = [None] * len(xs) if points is None else points
+        for x, y, p in zip(xs, ys, points):
+            self.add(x, float(y), p)
 
     @property
     def mean(self) -> np.ndarray:

@@ -59,6 +59,15 @@ class Planner(ABC):
         return False
 
 
+def best_node(candidates, scores, decimals: int = 9) -> int:
+    """The candidate with the highest score; scores equal to ``decimals`` places are ties and go
+    to the first candidate. Posteriors computed in different but equivalent ways differ by
+    1e-12 or so; without this, such noise would decide between equally good nodes and two
+    equivalent runs would part ways."""
+    rounded = np.round(np.asarray(scores, dtype=float), decimals)
+    return int(np.asarray(candidates)[int(np.argmax(rounded))])
+
+
 def free_neighbours(observation: Observation, vehicle: int, claimed: set[int]) -> list[int]:
     """Neighbours of a vehicle's node that no other vehicle holds or has claimed this step."""
     node = observation.positions[vehicle]

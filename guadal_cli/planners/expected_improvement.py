@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.stats import norm
 
 from ..envs.base import Observation
-from .base import TARGET, Planner
+from .base import TARGET, Planner, best_node
 
 
 class EIConfig(BaseModel):
@@ -61,7 +61,7 @@ class ExpectedImprovement(Planner):
             score = np.where(ok, ei, -1.0)
             if score.max() <= 1e-12:
                 score = np.where(ok, std, -1.0)
-            target = int(np.argmax(score))
+            target = best_node(np.arange(graph.n_nodes), score)
             targets[v] = target
             open_nodes[graph.nodes_within(target, self.config.exclusion_radius)] = False
             open_nodes[target] = False

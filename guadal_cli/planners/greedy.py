@@ -7,10 +7,8 @@ the lowest node id so runs are reproducible.
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..envs.base import Observation
-from .base import SEQUENTIAL, Planner, free_neighbours
+from .base import SEQUENTIAL, Planner, best_node, free_neighbours
 
 
 class GreedyStd(Planner):
@@ -32,7 +30,7 @@ class GreedyStd(Planner):
             ]
             if not options:
                 continue
-            best = options[int(np.argmax(std[options]))]
+            best = best_node(options, std[options])
             targets[v] = best
             claimed.add(best)
         return targets
