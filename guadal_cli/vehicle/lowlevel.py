@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from ..errors import GuadalError
@@ -95,11 +96,27 @@ class LowLevelPlanner:
         self.factor = factor
         self.fine_map = refine_map(map_, factor)
         self.fine = NavGraph(self.fine_map)
+        self._discourage_corner_cuts()
         # every fine cell (land too), so "which cell is this point in" is one tree query
         self._cells = cKDTree(np.column_stack([self.fine_map.x.ravel(), self.fine_map.y.ravel()]))
         self._water = self.fine_map.mask.ravel()
         self._step = self.fine_map.cell_size_m / 4.0
         self._margin = self.fine_map.cell_size_m * 0.25
+
+    def _discourage_corner_cuts(self) -> None:
+        """Make diagonal steps past a land corner expensive, so paths keep off the shore.
+
+        They stay possible (×10 their length): where the map joins two basins only at a corner,
+        the planner's graph says the boat can pass, and the boat's graph must agree.
+        """
+        fine, mask = self.fine, self.fine_map.mask
+        adj = fine.adjacency.tocoo()
+        a, b = adj.row, adj.col
+        diagonal = (fine.rows[a] != fine.rows[b]) & (fine.cols[a] != fine.cols[b])
+        clear = mask[fine.rows[a], fine.cols[b]] & mask[fine.rows[b], fine.cols[a]]
+        weights = np.where(diagonal & ~clear, adj.data * 10.0, adj.data)
+        # NavGraph's Dijkstra reads .adjacency when first asked; nothing has been cached yet
+        fine.adjacency = csr_matrix((weights, (a, b)), shape=adj.shape)
 
     # --- geofence --------------------------------------------------------------------------
     def check_target(self, node: int, lat: float, lon: float) -> str | None:

@@ -1,0 +1,107 @@
+"""``guadal bridge``: one vehicle's MQTT <-> MAVLink bridge (runs on the boat's companion computer)."""
+
+from __future__ import annotations
+
+import logging
+import signal
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from ..console import fail
+from ..errors import GuadalError
+
+
+class _Stopped(Exception):
+    """SIGTERM/SIGINT before the bridge was serving."""
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("bridge")
+    def bridge(
+        vehicle_id: Optional[int] = typer.Option(None, "--vehicle-id", help="Vehicle number N (topics F/vehicle/N/...)."),
+        mavlink: Optional[str] = typer.Option(None, "--mavlink", help="tcp:HOST:PORT, udpin:HOST:PORT, /dev/ttyACM0 ..."),
+        broker: Optional[str] = typer.Option(None, "--broker", help="mqtt://[user:pass@]host:port (mqtts:// for TLS)."),
+        map_path: Optional[str] = typer.Option(None, "--map", help="The guadal map file the planner uses."),
+        fleet: Optional[str] = typer.Option(None, "--fleet", help="Topic prefix shared with the planner (default: guadal)."),
+        sensor: Optional[str] = typer.Option(None, "--sensor", help="synthetic:CSV, replay:CSV or serial:/dev/ttyUSB0."),
+        baud: Optional[int] = typer.Option(None, "--baud", help="Baud rate of a serial autopilot (default: 115200)."),
+        arm: Optional[bool] = typer.Option(None, "--arm/--no-arm", help="Set GUIDED and arm at start-up."),
+        guided: Optional[bool] = typer.Option(None, "--guided/--no-guided", help="Set GUIDED at start-up."),
+        failsafe_timeout: Optional[float] = typer.Option(None, "--failsafe-timeout", help="Seconds of planner silence before HOLD (default: 10)."),
+        arrival_radius: Optional[float] = typer.Option(None, "--arrival-radius", help="Metres that count as reached (default: 2)."),
+        telemetry_hz: Optional[float] = typer.Option(None, "--telemetry-hz", help="Telemetry messages per second (default: 2)."),
+        refine: Optional[int] = typer.Option(None, "--refine", help="High-resolution factor of the path grid (default: 3)."),
+        waypoint_command: Optional[str] = typer.Option(None, "--waypoint-command", help="position_target or mission_item."),
+        hold_on_exit: Optional[bool] = typer.Option(None, "--hold-on-exit/--no-hold-on-exit", help="HOLD when the bridge stops (default: on)."),
+        log_level: Optional[str] = typer.Option(None, "--log-level", help="debug, info, warning or error (default: info)."),
+        config: Optional[Path] = typer.Option(None, "--config", help="YAML file with the same settings (underscored names)."),
+    ) -> None:
+        """Bridge one vehicle: planner commands over MQTT in, guided waypoints over MAVLink out."""
+        from ..vehicle.config import load_config
+
+        overrides = {
+            "vehicle_id": vehicle_id, "mavlink": mavlink, "broker": broker, "map": map_path, "fleet": fleet,
+            "sensor": sensor, "baud": baud, "arm": arm, "guided": guided, "failsafe_timeout": failsafe_timeout,
+            "arrival_radius": arrival_radius, "telemetry_hz": telemetry_hz, "refine": refine,
+            "waypoint_command": waypoint_command, "hold_on_exit": hold_on_exit, "log_level": log_level,
+        }
+        try:
+            settings = load_config(config, overrides)
+        except GuadalError as exc:
+            raise fail(exc)
+        logging.basicConfig(
+            level=settings.log_level.upper(), format=f"%(asctime)s vehicle {settings.vehicle_id} %(levelname)s %(message)s"
+        )
+        running = {"bridge": None}
+
+        def on_signal(signum, frame):
+            if running["bridge"] is None:
+                raise _Stopped()
+            running["bridge"].stop.set()
+
+        signal.signal(signal.SIGTERM, on_signal)
+        signal.signal(signal.SIGINT, on_signal)
+        link = None
+        try:
+            bridge_obj, link = _build(settings)
+            running["bridge"] = bridge_obj
+            bridge_obj.run()
+        except _Stopped:
+            if link is not None:
+                link.close()
+            raise typer.Exit(0)
+        except GuadalError as exc:
+            if link is not None:
+                link.close()
+            raise fail(exc)
+
+
+def _build(settings):
+    """Everything that can fail on bad input, checked before the vehicle is touched."""
+    from ..graph import NavGraph
+    from ..maps.format import load_map
+    from ..vehicle.bridge import Bridge
+    from ..vehicle.lowlevel import LowLevelPlanner
+    from ..vehicle.mavlink_link import AutopilotLink
+    from ..vehicle.sensors import SensorContext, build_sensor, parse_sensor_option
+
+    log = logging.getLogger("guadal.bridge")
+    map_ = load_map(settings.map_path())
+    graph = NavGraph(map_)
+    planner = LowLevelPlanner(map_, settings.refine, graph=graph)
+    sensor = None
+    if settings.sensor is not None:
+        section = parse_sensor_option(settings.sensor) if isinstance(settings.sensor, str) else settings.sensor
+        sensor = build_sensor(section, SensorContext(graph=graph, base_dir=settings.sensor_base_dir))
+    link = AutopilotLink(settings.mavlink, settings.baud, source_system=settings.source_system)
+    log.info("waiting for the autopilot on %s", settings.mavlink)
+    try:
+        link.wait_vehicle(settings.connect_timeout)
+    except BaseException:
+        link.close()
+        raise
+    s = link.snapshot()
+    log.info("autopilot system %d in %s, %s", link.target_system, s.mode, "armed" if s.armed else "disarmed")
+    return Bridge(settings, planner, link, sensor), link

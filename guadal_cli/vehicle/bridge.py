@@ -1,0 +1,630 @@
+"""The vehicle bridge: guadal's MQTT protocol on one side, one MAVLink autopilot on the other.
+
+Three threads feed one queue: paho's network loop (commands, planner status), the MAVLink
+reader (acks, arrivals) and the sensor worker (readings). The main loop alone changes the
+bridge's state, so the protocol rules below are plain sequential code:
+
+- ``goto``: geofence, plan a water-only path on the high-resolution graph, drive it waypoint by
+  waypoint in GUIDED, ack ``accepted`` then ``reached`` (with the boat's position). A newer goto
+  replaces the current one; a duplicate ``seq`` re-sends the ack of the state it is in; an
+  older one is ignored and counted.
+- ``measure``: read the sensor at the boat's position, publish a ``measurement``.
+- ``hold``: HOLD mode. ``ping``: contact only.
+- No planner message for ``failsafe_timeout`` s, or the planner's last will: HOLD, status
+  ``failsafe``. The next goto resumes.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+import paho.mqtt.client as mqtt
+
+from ..errors import GuadalError
+from ..fleet import messages
+from ..maps.format import haversine_m
+from .config import BridgeConfig, parse_broker_url
+from .lowlevel import LowLevelPlanner, Waypoint
+from .mavlink_link import (
+    COMMAND_NAMES, MODE_GUIDED, MODE_HOLD, RESULT_NAMES, AutopilotLink, mavlink, mode_name,
+)
+from .sensors import SensorError
+
+log = logging.getLogger("guadal.bridge")
+
+MODE_RETRY_S = 1.5  # re-ask for a mode that the heartbeat does not show yet
+MODE_GIVE_UP = 8  # requests before a mode change is reported as failed
+TARGET_RESEND_S = 2.0  # guided targets are not acknowledged: repeat them (idempotent)
+STATUS_REFRESH_S = 15.0
+ARRIVAL_GATE_FACTOR = 4.0  # MISSION_ITEM_REACHED counts only this close (× radius) to the target
+
+COUNTERS = (
+    "bad_payload", "wrong_vehicle", "stale_seq", "duplicate_seq", "command_failed", "arm_failed",
+    "mission_ack_error", "sensor_error", "rejected_goto", "failsafe",
+)
+
+
+@dataclass
+class Goal:
+    """One goto: its path, how far along it the boat is, and the last ack sent for it."""
+
+    seq: int
+    node: int
+    lat: float
+    lon: float
+    waypoints: list[Waypoint] = field(default_factory=list)
+    index: int = 0
+    status: str = "accepted"  # accepted | reached | rejected | failed
+    reason: str | None = None
+    reached_at: tuple[float, float] | None = None
+    sent_at: float = 0.0  # monotonic time the current waypoint was last sent
+    sent_position_count: int = -1  # position fixes seen when the current waypoint was first sent
+    seen_guided: bool = False
+
+    @property
+    def active(self) -> bool:
+        return self.status == "accepted"
+
+    @property
+    def waypoint(self) -> Waypoint:
+        return self.waypoints[self.index]
+
+    @property
+    def final(self) -> bool:
+        return self.index == len(self.waypoints) - 1
+
+
+class Bridge:
+    """One vehicle's bridge; :meth:`run` until ``stop`` is set."""
+
+    def __init__(self, config: BridgeConfig, planner: LowLevelPlanner, link: AutopilotLink, sensor=None):
+        self.config = config
+        self.planner = planner
+        self.link = link
+        self.sensor = sensor
+        self.vid = config.vehicle_id
+        self.fleet = config.fleet
+        self.events: queue.Queue = queue.Queue()
+        self.stop = threading.Event()
+        self.counters = {name: 0 for name in COUNTERS}
+        self.state = "online"  # online | hold | failsafe
+        self.failsafe_reason: str | None = None
+        self.arm_error: str | None = None
+        self.autopilot_text: str | None = None
+        self.last_seq = -1
+        self.last_kind: str | None = None
+        self.goal: Goal | None = None
+        self.last_reply: tuple[str, bytes] | None = None  # (channel, payload) answering the newest non-goto
+        self.last_contact: float | None = None  # monotonic; None until the planner is first heard
+        self.want_mode: int | None = None
+        self.mode_requests = 0
+        self.mode_requested_at = 0.0
+        self.want_armed = config.arm
+        self.arm_requested_at = -1e9
+        self._next_beat = 0.0
+        self._next_telemetry = 0.0
+        self._status_sent: dict | None = None
+        self._status_at = 0.0
+        self._sensor_jobs: queue.Queue = queue.Queue()
+        self._last_heartbeat_seen = 0.0
+        self.topic_command = messages.topic(self.fleet, self.vid, "command")
+        self.topic_planner = messages.topic(self.fleet, None, "status")
+        self.mqtt = self._make_client()
+
+    # --- MQTT --------------------------------------------------------------------------------
+    def _client_id(self) -> str:
+        return f"guadal-bridge-{self.fleet.replace('/', '-')}-{self.vid}"
+
+    def _new_client(self, clean: bool) -> mqtt.Client:
+        broker = parse_broker_url(self.config.broker)
+        client = mqtt.Client(
+            mqtt.CallbackAPIVersion.VERSION2, client_id=self._client_id(), clean_session=clean,
+            protocol=mqtt.MQTTv311,
+        )
+        if broker["username"]:
+            client.username_pw_set(broker["username"], broker["password"])
+        if broker["tls"]:
+            client.tls_set(ca_certs=self.config.tls_ca)
+        return client
+
+    def _make_client(self) -> mqtt.Client:
+        client = self._new_client(clean=False)
+        client.will_set(self._topic("status"), messages.encode("status", state="offline", vehicle=self.vid), qos=1, retain=True)
+        client.reconnect_delay_set(min_delay=0.2, max_delay=5)
+        client.on_connect = self._on_connect
+        client.on_disconnect = self._on_disconnect
+        client.on_message = lambda c, u, msg: self.events.put(("mqtt", msg.topic, msg.payload))
+        return client
+
+    def _forget_old_session(self) -> None:
+        """Drop what the broker queued for an earlier run of this bridge (old, unanswerable commands).
+
+        The session the bridge then opens is persistent, so commands sent while the link is briefly
+        down reach it after the reconnect.
+        """
+        broker = parse_broker_url(self.config.broker)
+        client = self._new_client(clean=True)
+        try:
+            client.connect(broker["host"], broker["port"], keepalive=5)
+            client.disconnect()
+        except OSError as exc:
+            log.warning("broker %s not reachable yet (%s); will keep trying", self.config.broker, exc)
+
+    def _on_connect(self, client, userdata, flags, reason_code, properties) -> None:
+        if reason_code.is_failure:
+            log.error("broker refused the connection: %s", reason_code)
+            return
+        # subscribe again on every connect: a restarted broker has forgotten us
+        client.subscribe([(self.topic_command, 1), (self.topic_planner, 1)])
+        self.events.put(("connected",))
+
+    def _on_disconnect(self, client, userdata, flags, reason_code, properties) -> None:
+        if not self.stop.is_set():
+            log.warning("lost the broker (%s); reconnecting", reason_code)
+
+    def _topic(self, channel: str) -> str:
+        return messages.topic(self.fleet, self.vid, channel)
+
+    def _publish(self, channel: str, payload: bytes, qos: int = 1, retain: bool = False):
+        return self.mqtt.publish(self._topic(channel), payload, qos=qos, retain=retain)
+
+    # --- status --------------------------------------------------------------------------------
+    def status_fields(self) -> dict:
+        s = self.link.snapshot()
+        return {
+            "state": self.state,
+            "vehicle": self.vid,
+            "mode": s.mode,
+            "armed": s.armed,
+            "failsafe_reason": self.failsafe_reason,
+            "arm_error": self.arm_error,
+            "autopilot_text": self.autopilot_text,
+            "goal": None if self.goal is None else {"seq": self.goal.seq, "node": self.goal.node, "status": self.goal.status},
+            "last_seq": self.last_seq,
+            "counters": dict(self.counters),
+        }
+
+    def publish_status(self, force: bool = False) -> None:
+        fields = self.status_fields()
+        now = time.monotonic()
+        if not force and fields == self._status_sent and now - self._status_at < STATUS_REFRESH_S:
+            return
+        self._status_sent, self._status_at = fields, now
+        self._publish("status", messages.encode("status", **fields), retain=True)
+
+    def count(self, name: str) -> None:
+        self.counters[name] += 1
+
+    # --- acks ------------------------------------------------------------------------------------
+    def _ack_goal(self, goal: Goal) -> None:
+        fields = {"seq": goal.seq, "status": goal.status, "command": "goto", "node": goal.node}
+        if goal.reason:
+            fields["reason"] = goal.reason
+        if goal.reached_at is not None:
+            fields["lat"], fields["lon"] = goal.reached_at
+        t = self.link.snapshot().time_boot_s
+        if t is not None:
+            fields["t"] = t
+        self._publish("ack", messages.encode("ack", **fields))
+
+    def _ack(self, seq: int, kind: str, status: str, reason: str | None = None) -> bytes:
+        fields = {"seq": seq, "status": status, "command": kind}
+        if reason:
+            fields["reason"] = reason
+        payload = messages.encode("ack", **fields)
+        self._publish("ack", payload)
+        return payload
+
+    # --- commands ----------------------------------------------------------------------------------
+    def handle_command(self, payload: bytes) -> None:
+        try:
+            data = messages.decode(payload, expected=messages.COMMAND_TYPES)
+        except messages.ProtocolError as exc:
+            self.count("bad_payload")
+            log.warning("ignored a command: %s", exc)
+            self.publish_status()
+            return
+        if "vehicle" in data and data["vehicle"] != self.vid:
+            self.count("wrong_vehicle")
+            log.warning("ignored a command: it names vehicle %r but came on the topic of vehicle %d.", data["vehicle"], self.vid)
+            self.publish_status()
+            return
+        seq, kind = data["seq"], data["type"]
+        if seq < self.last_seq:
+            self.count("stale_seq")
+            log.warning("ignored %s seq %d: older than the last command (seq %d).", kind, seq, self.last_seq)
+            self.publish_status()
+            return
+        self.last_contact = time.monotonic()
+        if seq == self.last_seq:
+            self.count("duplicate_seq")
+            log.info("duplicate %s seq %d: repeating its answer", kind, seq)
+            self._repeat_answer(kind, seq)
+            self.publish_status()
+            return
+        self.last_seq, self.last_kind = seq, kind
+        if kind == "goto":
+            self.start_goto(data)
+        elif kind == "measure":
+            self.start_measure(data)
+        elif kind == "hold":
+            self.enter_hold()
+            self.last_reply = ("ack", self._ack(seq, "hold", "accepted"))
+        self.publish_status()
+
+    def _repeat_answer(self, kind: str, seq: int) -> None:
+        if kind != self.last_kind:
+            log.warning("seq %d was a %s, now it comes as a %s; answering nothing.", seq, self.last_kind, kind)
+        elif kind == "goto" and self.goal is not None and self.goal.seq == seq:
+            self._ack_goal(self.goal)
+        elif kind in ("measure", "hold") and self.last_reply is not None:
+            self._publish(*self.last_reply)
+
+    def start_goto(self, data: dict) -> None:
+        goal = Goal(seq=data["seq"], node=data["node"], lat=float(data["lat"]), lon=float(data["lon"]))
+        previous, self.goal = self.goal, goal
+        if previous is not None and previous.active:
+            log.info("goto seq %d replaces seq %d", goal.seq, previous.seq)
+        s = self.link.snapshot()
+        reason = self.planner.check_target(goal.node, goal.lat, goal.lon)
+        if reason is None and s.lat is None:
+            reason = "the autopilot has not reported a position yet."
+        if reason is None and not s.armed and not self.config.arm:
+            reason = "the vehicle is disarmed (arm it, or start the bridge with --arm)."
+        if reason is None:
+            try:
+                goal.waypoints = self.planner.plan(s.lat, s.lon, goal.lat, goal.lon)
+            except GuadalError as exc:
+                reason = str(exc)
+        if reason is not None:
+            goal.status, goal.reason = "rejected", reason
+            self.count("rejected_goto")
+            log.warning("rejected goto seq %d to node %d: %s", goal.seq, goal.node, reason)
+            self._ack_goal(goal)
+            return
+        log.info("goto seq %d to node %d: %d waypoint(s)", goal.seq, goal.node, len(goal.waypoints))
+        self._ack_goal(goal)
+        if self.state != "online":
+            log.info("resuming from %s", self.state)
+        self.state, self.failsafe_reason = "online", None
+        self.request_mode(MODE_GUIDED)
+        self.drive()
+
+    def start_measure(self, data: dict) -> None:
+        s = self.link.snapshot()
+        if self.sensor is None:
+            self.last_reply = ("ack", self._ack(data["seq"], "measure", "failed", "this bridge has no sensor (start it with --sensor)."))
+            return
+        if s.lat is None:
+            self.last_reply = ("ack", self._ack(data["seq"], "measure", "failed", "the autopilot has not reported a position yet."))
+            return
+        self.last_reply = None
+        self._sensor_jobs.put((data["seq"], data["node"], s.lat, s.lon, s.time_boot_s))
+
+    def _sensor_worker(self) -> None:
+        """Readings can block (a serial probe): they run here, not in the main loop."""
+        while True:
+            job = self._sensor_jobs.get()
+            if job is None:
+                return
+            seq, node, lat, lon, t = job
+            try:
+                result = ("value", self.sensor.read(lat, lon))
+            except SensorError as exc:
+                result = ("error", str(exc))
+            except Exception as exc:  # a third-party probe's bug must not stop the bridge
+                result = ("error", f"sensor failed: {exc.__class__.__name__}: {exc}")
+            self.events.put(("sensor", seq, node, lat, lon, t, result))
+
+    def finish_measure(self, seq, node, lat, lon, t, result) -> None:
+        kind, value = result
+        if kind == "error":
+            self.count("sensor_error")
+            log.warning("measure seq %d failed: %s", seq, value)
+            reply = ("ack", self._ack(seq, "measure", "failed", value))
+        else:
+            payload = messages.encode("measurement", seq=seq, node=node, value=value, lat=lat, lon=lon,
+                                      t=t, vehicle=self.vid)
+            self._publish("measurement", payload)
+            reply = ("measurement", payload)
+        if seq == self.last_seq:
+            self.last_reply = reply
+
+    # --- modes, arming, failsafe -------------------------------------------------------------------
+    def request_mode(self, mode: int) -> None:
+        self.want_mode = mode
+        self.mode_requests = 0
+        self.mode_requested_at = 0.0
+        self._pursue_mode()
+
+    def _pursue_mode(self) -> None:
+        if self.want_mode is None:
+            return
+        s = self.link.snapshot()
+        if s.custom_mode == self.want_mode:
+            self.want_mode = None
+            return
+        now = time.monotonic()
+        if now - self.mode_requested_at < MODE_RETRY_S:
+            return
+        if self.mode_requests >= MODE_GIVE_UP:
+            reason = f"the autopilot did not enter {mode_name(self.want_mode)} after {self.mode_requests} requests (still {s.mode})."
+            log.error(reason)
+            if self.want_mode == MODE_GUIDED and self.goal is not None and self.goal.active:
+                self.goal.status, self.goal.reason = "failed", reason
+                self._ack_goal(self.goal)
+            self.want_mode = None
+            return
+        self.link.set_mode(self.want_mode)
+        self.mode_requests += 1
+        self.mode_requested_at = now
+
+    def enter_hold(self, state: str = "hold") -> None:
+        if self.goal is not None and self.goal.active:
+            self.goal.status, self.goal.reason = "failed", f"interrupted: vehicle put in HOLD ({state})."
+            self._ack_goal(self.goal)
+        self.state = state
+        self.request_mode(MODE_HOLD)
+
+    def trigger_failsafe(self, reason: str) -> None:
+        if self.state == "failsafe":
+            return
+        log.warning("FAILSAFE: %s; vehicle to HOLD", reason)
+        self.count("failsafe")
+        self.failsafe_reason = reason
+        self.enter_hold("failsafe")
+        self.publish_status(force=True)
+
+    def handle_planner_status(self, payload: bytes) -> None:
+        try:
+            data = messages.decode(payload, expected={"status"})
+        except messages.ProtocolError as exc:
+            self.count("bad_payload")
+            log.warning("ignored planner status: %s", exc)
+            return
+        if data["state"] == "offline":
+            if self.last_contact is not None:
+                self.trigger_failsafe("the planner went offline")
+        else:
+            self.last_contact = time.monotonic()
+
+    def _pursue_arming(self, now: float) -> None:
+        s = self.link.snapshot()
+        if s.armed:
+            if self.arm_error:
+                log.info("vehicle armed")
+            self.arm_error = None
+            return
+        if not self.want_armed or now - self.arm_requested_at < self.config.arm_retry_interval:
+            return
+        self.arm_requested_at = now
+        self.link.arm()
+
+    # --- MAVLink events ------------------------------------------------------------------------------
+    def handle_mavlink(self, msg) -> None:
+        kind = msg.get_type()
+        if kind == "COMMAND_ACK":
+            if msg.result in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
+                return
+            name = COMMAND_NAMES.get(msg.command, str(msg.command))
+            result = RESULT_NAMES.get(msg.result, str(msg.result))
+            self.count("command_failed")
+            log.warning("autopilot answered %s to %s", result, name)
+            if msg.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+                self.count("arm_failed")
+                detail = f" ({self.autopilot_text})" if self.autopilot_text else ""
+                self.arm_error = f"the autopilot refused to arm: {result}{detail}; retrying every {self.config.arm_retry_interval:g} s."
+                log.warning(self.arm_error)
+        elif kind == "MISSION_ACK":
+            if msg.type != mavlink.MAV_MISSION_ACCEPTED:
+                self.count("mission_ack_error")
+                log.warning("autopilot rejected the guided waypoint (MISSION_ACK %d)", msg.type)
+                if self.goal is not None and self.goal.active:
+                    self.goal.sent_at = 0.0  # resend at the next tick (GUIDED may not be on yet)
+        elif kind == "MISSION_ITEM_REACHED":
+            self._on_reached_message()
+        elif kind == "STATUSTEXT":
+            text = msg.text.strip() if isinstance(msg.text, str) else str(msg.text)
+            if msg.severity <= mavlink.MAV_SEVERITY_WARNING:
+                self.autopilot_text = text
+                log.warning("autopilot: %s", text)
+            else:
+                log.info("autopilot: %s", text)
+
+    def _on_reached_message(self) -> None:
+        goal = self.goal
+        if goal is None or not goal.active or goal.sent_position_count < 0:
+            return
+        s = self.link.snapshot()
+        d = self._distance(s, goal.waypoint)
+        gate = max(ARRIVAL_GATE_FACTOR * self.config.arrival_radius, 5.0)
+        if d is None or d > gate:
+            log.debug("MISSION_ITEM_REACHED %.1f m from waypoint %d: taken as late, for an earlier target", d or -1, goal.index)
+            return
+        if goal.final:
+            self._check_arrival(s, reached_message=True)
+        else:
+            self._advance()
+
+    # --- driving ---------------------------------------------------------------------------------------
+    @staticmethod
+    def _distance(s, wp: Waypoint) -> float | None:
+        if s.lat is None:
+            return None
+        return float(haversine_m(s.lat, s.lon, wp.lat, wp.lon))
+
+    def _send_waypoint(self) -> None:
+        goal = self.goal
+        wp = goal.waypoint
+        if self.config.waypoint_command == "mission_item":
+            self.link.guided_mission_item(wp.lat, wp.lon)
+        else:
+            self.link.position_target(wp.lat, wp.lon)
+        if goal.sent_position_count < 0:
+            goal.sent_position_count = self.link.snapshot().position_count
+        goal.sent_at = time.monotonic()
+
+    def _advance(self) -> None:
+        goal = self.goal
+        goal.index += 1
+        goal.sent_position_count = -1
+        goal.sent_at = 0.0
+        log.debug("waypoint %d/%d", goal.index + 1, len(goal.waypoints))
+        self.drive()
+
+    def _check_arrival(self, s, reached_message: bool = False) -> None:
+        goal = self.goal
+        # only positions reported after the target went out count (no stale fix)
+        if s.position_count <= goal.sent_position_count:
+            return
+        d = self._distance(s, goal.waypoint)
+        if d is None:
+            return
+        if d <= self.config.arrival_radius:
+            if not goal.final:
+                self._advance()
+                return
+            goal.status, goal.reached_at = "reached", (s.lat, s.lon)
+            log.info("goto seq %d reached node %d (%.2f m from the target)", goal.seq, goal.node, d)
+            self._ack_goal(goal)
+            self.publish_status()
+        elif reached_message:
+            log.info("autopilot reports arrival %.1f m from the target; waiting to be within %.1f m", d,
+                     self.config.arrival_radius)
+
+    def drive(self) -> None:
+        """Advance the active goal: mode, target (re)sends, arrival."""
+        goal = self.goal
+        if goal is None or not goal.active:
+            return
+        s = self.link.snapshot()
+        if s.custom_mode == MODE_GUIDED:
+            goal.seen_guided = True
+        elif goal.seen_guided and self.want_mode is None:
+            goal.status, goal.reason = "failed", f"the vehicle left GUIDED (now {s.mode}); someone else has control."
+            log.warning("goto seq %d: %s", goal.seq, goal.reason)
+            self._ack_goal(goal)
+            self.publish_status()
+            return
+        if s.custom_mode != MODE_GUIDED or not s.armed:
+            return
+        now = time.monotonic()
+        if goal.sent_position_count < 0 or now - goal.sent_at >= TARGET_RESEND_S:
+            self._send_waypoint()
+        self._check_arrival(s)
+
+    # --- main loop -------------------------------------------------------------------------------------
+    def publish_telemetry(self) -> None:
+        s = self.link.snapshot()
+        if s.lat is None:
+            return
+        payload = messages.encode(
+            "telemetry", t=s.time_boot_s, lat=s.lat, lon=s.lon, heading=s.heading, speed=s.speed,
+            mode=s.mode, armed=s.armed, battery=s.battery, vehicle=self.vid,
+        )
+        self._publish("telemetry", payload, qos=0)
+
+    def request_streams(self) -> None:
+        """Ask for the messages the bridge needs, faster than Rover's 1 Hz default."""
+        position_hz = max(5.0, 2 * self.config.telemetry_hz)
+        for msg_id, hz in (
+            (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, position_hz),
+            (mavlink.MAVLINK_MSG_ID_VFR_HUD, self.config.telemetry_hz),
+            (mavlink.MAVLINK_MSG_ID_SYS_STATUS, 1.0),
+        ):
+            self.link.request_interval(msg_id, hz)
+
+    def tick(self) -> None:
+        now = time.monotonic()
+        s = self.link.snapshot()
+        if now >= self._next_beat:
+            self.link.send_heartbeat()
+            self._next_beat = now + 1.0
+            if s.last_heartbeat and now - s.last_heartbeat > 3.0:
+                log.warning("no heartbeat from the autopilot for %.0f s", now - s.last_heartbeat)
+        if s.last_heartbeat - self._last_heartbeat_seen > 3.0 and self._last_heartbeat_seen:
+            log.info("autopilot heard again; asking for its telemetry streams")
+            self.request_streams()
+        self._last_heartbeat_seen = s.last_heartbeat
+        if (
+            self.last_contact is not None and self.state != "failsafe"
+            and now - self.last_contact > self.config.failsafe_timeout
+        ):
+            self.trigger_failsafe(f"no planner message for {self.config.failsafe_timeout:g} s")
+        self._pursue_mode()
+        self._pursue_arming(now)
+        self.drive()
+        if now >= self._next_telemetry:
+            self.publish_telemetry()
+            self._next_telemetry = now + 1.0 / self.config.telemetry_hz
+        self.publish_status()
+
+    def dispatch(self, event) -> None:
+        kind = event[0]
+        if kind == "mqtt":
+            _, topic, payload = event
+            if topic == self.topic_command:
+                self.handle_command(payload)
+            elif topic == self.topic_planner:
+                self.handle_planner_status(payload)
+        elif kind == "mav":
+            self.handle_mavlink(event[1])
+        elif kind == "sensor":
+            self.finish_measure(*event[1:])
+        elif kind == "connected":
+            log.info("connected to the broker %s as vehicle %d", self.config.broker, self.vid)
+            self.publish_status(force=True)
+
+    def run(self) -> None:
+        """Serve until :attr:`stop` is set; then publish ``offline`` and (optionally) HOLD."""
+        self.link.on_event = lambda msg: self.events.put(("mav", msg))
+        self.link.start()
+        self.request_streams()
+        if self.config.arm or self.config.guided:
+            self.request_mode(MODE_GUIDED)
+        worker = threading.Thread(target=self._sensor_worker, name="sensor", daemon=True)
+        if self.sensor is not None:
+            worker.start()
+        broker = parse_broker_url(self.config.broker)
+        self._forget_old_session()
+        self.mqtt.connect_async(broker["host"], broker["port"], keepalive=10)
+        self.mqtt.loop_start()
+        try:
+            while not self.stop.is_set():
+                try:
+                    event = self.events.get(timeout=0.05)
+                except queue.Empty:
+                    event = None
+                try:
+                    if event is not None:
+                        self.dispatch(event)
+                    self.tick()
+                except Exception:  # keep the vehicle's bridge alive; the log says what broke
+                    log.exception("internal error while handling %s", event[0] if event else "a tick")
+        finally:
+            self.shutdown()
+            if self.sensor is not None:
+                self._sensor_jobs.put(None)
+
+    def shutdown(self) -> None:
+        if self.config.hold_on_exit:
+            try:
+                self.link.set_mode(MODE_HOLD)
+            except Exception as exc:
+                log.warning("could not send HOLD on exit: %s", exc)
+        info = self._publish("status", messages.encode("status", state="offline", vehicle=self.vid), retain=True)
+        if self.mqtt.is_connected():
+            try:
+                info.wait_for_publish(timeout=2.0)
+            except (RuntimeError, ValueError):
+                pass
+        self.mqtt.disconnect()
+        self.mqtt.loop_stop()
+        self.link.close()
+        if self.sensor is not None:
+            self.sensor.close()
+        log.info("bridge for vehicle %d stopped", self.vid)
