@@ -39,10 +39,6 @@ class RunResult:
     final_metrics: dict
 
 
-class Interrupted(Exception):
-    """SIGTERM, turned into an orderly stop that marks the run interrupted."""
-
-
 class CoverageTracker:
     """Fraction of nodes within a radius of at least one sample."""
 
@@ -226,7 +222,7 @@ class MissionRunner:
         previous_term = signal.getsignal(signal.SIGTERM)
 
         def _on_term(signum, frame):
-            raise Interrupted()
+            raise KeyboardInterrupt  # SIGTERM stops a run exactly as Ctrl-C does
 
         try:
             signal.signal(signal.SIGTERM, _on_term)
@@ -242,7 +238,7 @@ class MissionRunner:
             self._record(fleet, first)
             self._mission_loop(fleet)
             status = "complete"
-        except (KeyboardInterrupt, Interrupted):
+        except KeyboardInterrupt:
             status, error = "interrupted", "stopped by the user (interrupt or terminate signal)"
             raise
         except GuadalError as exc:

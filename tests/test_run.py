@@ -93,7 +93,8 @@ def test_target_mode_measures_at_every_intermediate_node(tmp_path, write_mission
     assert sum(b == a for a, b in zip(std, std[1:])) > len(std) / 3
 
 
-def test_ctrl_c_leaves_a_readable_run_marked_interrupted(tmp_path, write_mission):
+@pytest.mark.parametrize("stop", ["ctrl-c", "terminate"])
+def test_ctrl_c_leaves_a_readable_run_marked_interrupted(stop, tmp_path, write_mission):
     mission = write_mission(base_mission(map=str(ROOT / "maps" / "reservoir.json"),
                                          environment={"type": "gp", "kernel": {"length_scale": 25.0}},
                                          fleet={"vehicles": 3, "max_distance": 100000}))
@@ -111,7 +112,7 @@ def test_ctrl_c_leaves_a_readable_run_marked_interrupted(tmp_path, write_mission
         if proc.poll() is not None:
             pytest.fail(f"mission ended early: {proc.stderr.read()}")
         time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signal.SIGTERM if stop == "terminate" else signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     assert "Traceback" not in err

@@ -40,12 +40,14 @@ def register(app: typer.Typer) -> None:
         def on_step(step: int, fleet) -> None:
             progress.update(task, completed=sum(fleet.distances.values()), status=f"step {step}")
 
+        runner = None
         try:
             runner = MissionRunner(prep, output=output, on_step=on_step)
             with progress:
                 result = runner.run()
         except KeyboardInterrupt:
-            console.print(f"[yellow]interrupted[/]: partial results kept in {runner.output}")
+            if runner is not None and runner.output.exists():
+                console.print(f"[yellow]interrupted[/]: partial results kept in {runner.output}")
             raise typer.Exit(130)
         except GuadalError as exc:
             raise fail(exc)
