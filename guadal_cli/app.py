@@ -7,6 +7,7 @@ from typing import Optional
 import typer
 
 from . import __version__
+from .commands import bridge as bridge_cmd
 from .commands import map as map_cmd
 from .commands import mission as mission_cmd
 from .commands import plugins as plugins_cmd
@@ -36,6 +37,7 @@ def _root(
 mission_cmd.register(app)
 plugins_cmd.register(app)
 map_cmd.register(app)
+bridge_cmd.register(app)
 
 
 def main() -> None:
