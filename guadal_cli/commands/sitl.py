@@ -1,0 +1,96 @@
+"""``guadal sitl``: run MAVLink boat emulators (ArduPilot Rover/Boat semantics) for the sitl level."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+from typing import Optional
+
+import typer
+
+from ..console import fail
+from ..errors import GuadalError
+
+
+def _latlon(text: str, option: str) -> tuple[float, float]:
+    try:
+        lat, lon = (float(part) for part in text.split(","))
+    except ValueError:
+        raise GuadalError(f"{option} {text!r} must be LAT,LON in decimal degrees, e.g. 37.41795,-5.98345.") from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise GuadalError(f"{option} {text!r} is outside -90..90 latitude / -180..180 longitude.")
+    return lat, lon
+
+
+def _pair(text: str, option: str) -> tuple[float, float]:
+    try:
+        east, north = (float(part) for part in text.split(","))
+    except ValueError:
+        raise GuadalError(f"{option} {text!r} must be two numbers E,N in m/s, e.g. 0.05,-0.02.") from None
+    return east, north
+
+
+def _host_port(text: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise GuadalError(f"--udp-out {text!r} must be HOST:PORT, e.g. 127.0.0.1:14550.")
+    return host, int(port)
+
+
+def sitl(
+    vehicles: int = typer.Option(1, "--vehicles", "-n", help="Number of boats; vehicle i gets system id i+1."),
+    home: str = typer.Option("37.41795,-5.98345", "--home", help="LAT,LON of vehicle 1; the others start 5 m apart eastwards."),
+    homes: Optional[str] = typer.Option(None, "--homes", help="LAT,LON;LAT,LON;... one home per vehicle (overrides --home)."),
+    speedup: float = typer.Option(1.0, "--speedup", help="Simulated seconds per wall second."),
+    base_port: int = typer.Option(5760, "--base-port", help="TCP port of vehicle 1; vehicle i listens on base+10*i. 0 picks free ports."),
+    host: str = typer.Option("127.0.0.1", "--host", help="Address the TCP servers listen on."),
+    max_speed: float = typer.Option(0.5, "--max-speed", help="Top speed of the hull in m/s (also WP_SPEED's default)."),
+    gps_noise: float = typer.Option(0.0, "--gps-noise", help="Standard deviation of reported GPS positions, metres."),
+    current: str = typer.Option("0,0", "--current", help="Water current E,N in m/s that drifts every boat."),
+    udp_out: Optional[str] = typer.Option(None, "--udp-out", help="Also stream to HOST:PORT (+10*i for vehicle i)."),
+    serial: Optional[list[str]] = typer.Option(None, "--serial", help="Serial device per vehicle (repeat), or 'pty' for a fresh pseudo-terminal each."),
+    baud: int = typer.Option(115200, "--baud", help="Baud rate for --serial devices."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the GPS noise."),
+    max_rate: float = typer.Option(20.0, "--max-rate", help="Cap on wall-clock messages per second of each telemetry stream."),
+) -> None:
+    """Run N emulated MAVLink boats; prints one JSON line when every endpoint is listening."""
+    from ..sitl.server import SitlOptions, SitlServer, stats
+
+    try:
+        options = SitlOptions(
+            vehicles=vehicles,
+            home=_latlon(home, "--home"),
+            homes=[_latlon(part.strip(), "--homes") for part in homes.split(";") if part.strip()] if homes else None,
+            speedup=speedup,
+            base_port=base_port,
+            host=host,
+            max_speed=max_speed,
+            gps_noise_m=gps_noise,
+            current_en=_pair(current, "--current"),
+            udp_out=_host_port(udp_out) if udp_out else None,
+            serial=list(serial or []),
+            baud=baud,
+            seed=seed,
+            max_rate=max_rate,
+        )
+        if gps_noise < 0:
+            raise GuadalError(f"--gps-noise must be zero or positive (got {gps_noise}).")
+        server = SitlServer(options)
+        ready = server.open()
+    except GuadalError as exc:
+        raise fail(exc)
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: server.request_stop())
+    sys.stdout.write(json.dumps(ready) + "\n")
+    sys.stdout.flush()
+    try:
+        server.run()
+    finally:
+        summary = stats(server)
+        server.close()
+    sys.stderr.write(json.dumps({"stopped": True, "vehicles": summary}) + "\n")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("sitl")(sitl)

@@ -1,0 +1,280 @@
+"""Run N emulated boats in one process: one selector loop, one simulated clock.
+
+Simulated time runs ``speedup`` times faster than wall time.  Each telemetry stream is due at
+simulated instants (1 Hz by default, like Rover), but no stream is sent more than ``max_rate``
+times per *wall* second: at speed-up 200 a 1 Hz stream would be 200 messages a second per
+message per boat, and ten boats would spend the machine on packing telemetry nobody can read.
+When the cap binds, a stream's simulated interval stretches to ``speedup / max_rate`` seconds.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import selectors
+import socket
+import time
+from dataclasses import dataclass, field
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from ..errors import GuadalError
+from .link import Link, SerialPort, TcpListener, UdpOut
+from .physics import GeoFrame, HullLimits
+from .telemetry import send_once
+from .vehicle import EmulatedBoat, VehicleConfig
+
+#: wall seconds between physics updates of every boat (arrivals are detected on this beat)
+PHYSICS_TICK_S = 0.02
+#: metres east between consecutive default homes
+HOME_SPACING_M = 5.0
+
+
+@dataclass
+class SitlOptions:
+    vehicles: int = 1
+    home: tuple[float, float] = (37.41795, -5.98345)
+    homes: list[tuple[float, float]] | None = None
+    speedup: float = 1.0
+    base_port: int = 5760
+    host: str = "127.0.0.1"
+    max_speed: float = 0.5
+    gps_noise_m: float = 0.0
+    current_en: tuple[float, float] = (0.0, 0.0)
+    udp_out: tuple[str, int] | None = None
+    serial: list[str] = field(default_factory=list)  # one per vehicle: a device path or "pty"
+    baud: int = 115200
+    seed: int = 0
+    max_rate: float = 20.0  # wall messages per second per stream, per boat
+
+    def vehicle_homes(self) -> list[tuple[float, float]]:
+        if self.homes:
+            if len(self.homes) != self.vehicles:
+                raise GuadalError(
+                    f"--homes gives {len(self.homes)} positions for {self.vehicles} vehicles; give one LAT,LON per vehicle."
+                )
+            return list(self.homes)
+        frame = GeoFrame(*self.home)
+        return [frame.to_global(HOME_SPACING_M * i, 0.0) for i in range(self.vehicles)]
+
+
+class SimClock:
+    """Simulated seconds since start, ``speedup`` times faster than the monotonic wall clock."""
+
+    def __init__(self, speedup: float):
+        self.speedup = speedup
+        self.t0 = time.monotonic()
+
+    def sim(self, wall: float | None = None) -> float:
+        return ((time.monotonic() if wall is None else wall) - self.t0) * self.speedup
+
+    def wall(self, sim: float) -> float:
+        return self.t0 + sim / self.speedup
+
+
+class SitlServer:
+    """The boats, their links and the loop that drives them; ``open`` then ``run``."""
+
+    def __init__(self, options: SitlOptions):
+        if options.vehicles < 1:
+            raise GuadalError("--vehicles must be at least 1.")
+        if options.speedup <= 0:
+            raise GuadalError(f"--speedup must be positive (got {options.speedup}).")
+        if options.max_speed <= 0:
+            raise GuadalError(f"--max-speed must be positive (got {options.max_speed}).")
+        if options.max_rate <= 0:
+            raise GuadalError(f"--max-rate must be positive (got {options.max_rate}).")
+        if options.serial and len(options.serial) not in (1, options.vehicles):
+            raise GuadalError(f"--serial gives {len(options.serial)} devices for {options.vehicles} vehicles; give one, or one per vehicle.")
+        if options.serial and len(options.serial) == 1 and options.vehicles > 1 and options.serial[0] != "pty":
+            raise GuadalError("one --serial device cannot serve several vehicles; give one per vehicle, or 'pty'.")
+        self.options = options
+        self.selector = selectors.DefaultSelector()
+        self.clock: SimClock | None = None
+        self.boats: list[EmulatedBoat] = []
+        self.links: list[Link] = []
+        self.listeners: list[TcpListener] = []
+        self.serials: list[SerialPort | None] = []
+        self._heap: list[tuple[float, int, int, int, int]] = []
+        self._generation: dict[tuple[int, int], int] = {}
+        self._next_sim: dict[tuple[int, int], float] = {}
+        self._counter = itertools.count()
+        self._stopping = False
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+
+    # ---------------------------------------------------------------- setup
+    def open(self) -> dict:
+        """Bind every endpoint and start the clock; returns the ready description."""
+        opts = self.options
+        homes = opts.vehicle_homes()
+        self.selector.register(self._wake_r, selectors.EVENT_READ, self._drain_wake)
+        limits = HullLimits(max_speed=opts.max_speed)
+        try:
+            for i, home in enumerate(homes):
+                sysid = i + 1
+                link = Link(sysid, self.selector)
+                boat = EmulatedBoat(
+                    VehicleConfig(sysid, home, limits, opts.gps_noise_m, opts.current_en, opts.seed), link.mav
+                )
+                link.deliver = self._deliverer(boat)
+                port = 0 if opts.base_port == 0 else opts.base_port + 10 * i
+                try:
+                    self.listeners.append(TcpListener(link, opts.host, port))
+                except OSError as exc:
+                    raise GuadalError(
+                        f"cannot listen on {opts.host}:{port} for vehicle {sysid} ({exc.strerror}); "
+                        "choose another --base-port, or 0 for free ports."
+                    ) from None
+                if opts.udp_out:
+                    UdpOut(link, opts.udp_out[0], opts.udp_out[1] + 10 * i)
+                serial = None
+                if opts.serial:
+                    path = opts.serial[i] if len(opts.serial) > 1 else opts.serial[0]
+                    try:
+                        serial = SerialPort(link, path, opts.baud)
+                    except (OSError, ValueError) as exc:
+                        raise GuadalError(f"cannot open serial device {path!r} for vehicle {sysid}: {exc}.") from None
+                self.serials.append(serial)
+                self.boats.append(boat)
+                self.links.append(link)
+        except GuadalError:
+            self.close()
+            raise
+        self.clock = SimClock(opts.speedup)
+        for i, boat in enumerate(self.boats):
+            boat.streams.listener = self._restream(i)
+            for msg_id, interval in boat.streams.items():
+                if interval is not None:
+                    self._schedule(i, msg_id, 0.0, self.clock.t0)
+        return self.ready_info()
+
+    def ready_info(self) -> dict:
+        return {
+            "ready": True,
+            "speedup": self.options.speedup,
+            "vehicles": [
+                {
+                    "sysid": boat.sysid,
+                    "tcp": listener.port,
+                    "udp_out": (
+                        f"{self.options.udp_out[0]}:{self.options.udp_out[1] + 10 * i}" if self.options.udp_out else None
+                    ),
+                    "serial": serial.path if serial else None,
+                    "home": list(boat.config.home),
+                }
+                for i, (boat, listener, serial) in enumerate(zip(self.boats, self.listeners, self.serials))
+            ],
+        }
+
+    # ---------------------------------------------------------------- incoming
+    def _deliverer(self, boat: EmulatedBoat):
+        def deliver(msgs: list) -> None:
+            boat.advance(self.clock.sim())
+            for msg in msgs:
+                if isinstance(msg, mavlink.MAVLink_bad_data):
+                    boat.counters["bad_packets"] += 1
+                    continue
+                try:
+                    boat.handle(msg)
+                except Exception:  # a message with out-of-range fields must not stop the fleet
+                    boat.counters["bad_packets"] += 1
+
+        return deliver
+
+    # ---------------------------------------------------------------- telemetry scheduling
+    def _restream(self, index: int):
+        def changed(msg_id: int) -> None:
+            now = time.monotonic()
+            self._schedule(index, msg_id, self.clock.sim(now) + (self.boats[index].streams.interval(msg_id) or 0), now)
+
+        return changed
+
+    def _schedule(self, index: int, msg_id: int, due_sim: float, not_before_wall: float) -> None:
+        """(Re)plan stream ``msg_id`` of boat ``index``; older heap entries become stale."""
+        key = (index, msg_id)
+        gen = self._generation.get(key, 0) + 1
+        self._generation[key] = gen
+        if self.boats[index].streams.interval(msg_id) is None:
+            return
+        self._next_sim[key] = due_sim
+        wall = max(self.clock.wall(due_sim), not_before_wall)
+        heapq.heappush(self._heap, (wall, next(self._counter), index, msg_id, gen))
+
+    def _send_due(self, now: float) -> None:
+        sim_now = self.clock.sim(now)
+        min_gap = 1.0 / self.options.max_rate
+        while self._heap and self._heap[0][0] <= now:
+            _, _, index, msg_id, gen = heapq.heappop(self._heap)
+            key = (index, msg_id)
+            if self._generation.get(key) != gen:
+                continue
+            boat = self.boats[index]
+            interval = boat.streams.interval(msg_id)
+            if interval is None:
+                continue
+            if self.links[index].has_peers:
+                boat.advance(sim_now)
+                send_once(boat, msg_id)
+            due = self._next_sim[key] + interval
+            if due <= sim_now:  # fell behind (the wall-rate cap, or a slow loop): resynchronise
+                due = sim_now + interval
+            self._schedule(index, msg_id, due, now + min_gap)
+
+    # ---------------------------------------------------------------- loop
+    def run(self) -> None:
+        """Serve until :meth:`request_stop`."""
+        if self.clock is None:
+            self.open()
+        next_tick = time.monotonic()
+        while not self._stopping:
+            now = time.monotonic()
+            wake = next_tick if not self._heap else min(next_tick, self._heap[0][0])
+            for key, mask in self.selector.select(max(0.0, wake - now)):
+                key.data(mask)
+                if self._stopping:
+                    break
+            now = time.monotonic()
+            if now >= next_tick:
+                sim_now = self.clock.sim(now)
+                for boat in self.boats:
+                    boat.advance(sim_now)
+                next_tick = max(next_tick + PHYSICS_TICK_S, now)
+            self._send_due(now)
+
+    def request_stop(self) -> None:
+        """Safe from a signal handler or another thread."""
+        self._stopping = True
+        try:
+            self._wake_w.send(b"x")
+        except OSError:
+            pass
+
+    def _drain_wake(self, mask: int) -> None:
+        try:
+            self._wake_r.recv(64)
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        for listener in self.listeners:
+            listener.close()
+        for link in self.links:
+            link.close()
+        try:
+            self.selector.unregister(self._wake_r)
+        except (KeyError, ValueError):
+            pass
+        self._wake_r.close()
+        self._wake_w.close()
+        self.selector.close()
+
+
+def stats(server: SitlServer) -> list[dict]:
+    """Per-vehicle counters, for the shutdown summary."""
+    return [
+        dict(sysid=b.sysid, dropped_packets=link.dropped_packets, **b.counters, odometer_m=round(b.hull.odometer, 1))
+        for b, link in zip(server.boats, server.links)
+    ]
+
