@@ -11,6 +11,7 @@ from .commands import bridge as bridge_cmd
 from .commands import map as map_cmd
 from .commands import mission as mission_cmd
 from .commands import plugins as plugins_cmd
+from .commands import sitl as sitl_cmd
 
 app = typer.Typer(
     name="guadal",
@@ -37,6 +38,7 @@ def _root(
 mission_cmd.register(app)
 plugins_cmd.register(app)
 map_cmd.register(app)
+sitl_cmd.register(app)
 bridge_cmd.register(app)
 
 
