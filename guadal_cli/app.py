@@ -12,6 +12,7 @@ from .commands import map as map_cmd
 from .commands import mission as mission_cmd
 from .commands import plugins as plugins_cmd
 from .commands import sitl as sitl_cmd
+from .commands import stack as stack_cmd
 
 app = typer.Typer(
     name="guadal",
@@ -40,6 +41,7 @@ plugins_cmd.register(app)
 map_cmd.register(app)
 sitl_cmd.register(app)
 bridge_cmd.register(app)
+stack_cmd.register(app)
 
 
 def main() -> None:

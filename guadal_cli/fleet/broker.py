@@ -86,6 +86,26 @@ class BrokerProcess:
             self.process.wait(5)
 
 
+def child_options(detach: bool) -> dict:
+    """Popen options for a stack process.
+
+    Every child gets its own session, so a Ctrl-C in the terminal reaches only the planner,
+    which then stops the stack in order. A child that is not detached also dies with its
+    parent (Linux), so even a killed planner leaves nothing behind.
+    """
+    options: dict = {"start_new_session": True}
+    if not detach and sys.platform.startswith("linux"):
+        options["preexec_fn"] = _die_with_parent
+    return options
+
+
+def _die_with_parent() -> None:
+    import ctypes
+
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
 def stop_process(process: subprocess.Popen, grace: float = 3.0) -> None:
     if process.poll() is not None:
         return
@@ -122,7 +142,7 @@ def start_broker(
     """Start a private broker and return once it accepts connections.
 
     ``kind``: ``mosquitto``, ``embedded`` or ``auto`` (Mosquitto if installed). ``port`` 0 picks a
-    free one. ``detach`` starts it in its own session so it outlives the caller (``guadal stack up``).
+    free one. ``detach`` lets it outlive the caller (``guadal stack up``).
     """
     if kind not in BROKER_KINDS:
         raise GuadalError(f"broker kind '{kind}' is unknown (allowed: {', '.join(BROKER_KINDS)}).")
@@ -146,7 +166,7 @@ def start_broker(
         cmd = [sys.executable, "-m", "guadal_cli.fleet.broker", "--host", host, "--port", str(port)]
     with open(log_path, "ab") as log:
         process = subprocess.Popen(
-            cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, start_new_session=detach
+            cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, **child_options(detach)
         )
     broker = BrokerProcess(chosen, host, port, process, wd, log_path, _own_workdir=own)
     try:
