@@ -35,6 +35,7 @@ def register(app: typer.Typer) -> None:
         refine: Optional[int] = typer.Option(None, "--refine", help="High-resolution factor of the path grid (default: 3)."),
         waypoint_command: Optional[str] = typer.Option(None, "--waypoint-command", help="position_target or mission_item."),
         hold_on_exit: Optional[bool] = typer.Option(None, "--hold-on-exit/--no-hold-on-exit", help="HOLD when the bridge stops (default: on)."),
+        connect_timeout: Optional[float] = typer.Option(None, "--connect-timeout", help="Seconds to wait for the autopilot's heartbeat (default: 60)."),
         log_level: Optional[str] = typer.Option(None, "--log-level", help="debug, info, warning or error (default: info)."),
         config: Optional[Path] = typer.Option(None, "--config", help="YAML file with the same settings (underscored names)."),
     ) -> None:
@@ -46,6 +47,7 @@ def register(app: typer.Typer) -> None:
             "sensor": sensor, "baud": baud, "arm": arm, "guided": guided, "failsafe_timeout": failsafe_timeout,
             "arrival_radius": arrival_radius, "telemetry_hz": telemetry_hz, "refine": refine,
             "waypoint_command": waypoint_command, "hold_on_exit": hold_on_exit, "log_level": log_level,
+            "connect_timeout": connect_timeout,
         }
         try:
             settings = load_config(config, overrides)

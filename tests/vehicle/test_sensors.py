@@ -42,7 +42,7 @@ def write_grid(path, rows):
 
 
 def test_synthetic_reads_the_cell_under_the_boat(tmp_path, graph):
-    grid = write_grid(tmp_path / "truth.csv", [["x", 1.5, 2.5, "x"], [3, 4, 5, 6], ["x", 7, 8, "x"]])
+    write_grid(tmp_path / "truth.csv", [["x", 1.5, 2.5, "x"], [3, 4, 5, 6], ["x", 7, 8, "x"]])
     sensor = build_sensor({"type": "synthetic", "path": "truth.csv"}, SensorContext(graph, tmp_path))
     m = graph.map
     assert sensor.read(m.lat[1, 2], m.lon[1, 2]) == 5.0

@@ -1,0 +1,60 @@
+"""Fixtures for the bridge tests: a private Mosquitto, a small lake with a land tongue, stacks."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))  # vehicle_support, beside this file
+
+from guadal_cli.fleet.broker import mosquitto_binary, start_broker
+from guadal_cli.maps.format import Map
+from guadal_cli.graph import NavGraph
+from vehicle_support import Stack  # noqa: E402
+
+# 5 m cells; a land tongue (column 4, rows 1-4) splits the lake into a west and an east basin
+LAKE = [
+    "000000000",
+    "011101110",
+    "011101110",
+    "011101110",
+    "011101110",
+    "011111110",
+    "000000000",
+]
+
+
+@pytest.fixture(scope="session")
+def lake(tmp_path_factory):
+    mask = np.array([[c == "1" for c in row] for row in LAKE])
+    m = Map(mask=mask, cell_size_m=5.0, reference={"row": 3, "col": 4, "lat": 37.418, "lon": -5.983}, name="tongue")
+    path = tmp_path_factory.mktemp("map") / "tongue.json"
+    m.save(path)
+    m.source = path
+    return m, NavGraph(m), path
+
+
+@pytest.fixture(scope="session")
+def broker():
+    if mosquitto_binary() is None:
+        pytest.skip("these tests need Mosquitto (apt-get install mosquitto)")
+    b = start_broker("mosquitto")
+    yield b
+    b.stop()
+
+
+@pytest.fixture
+def stack(broker, lake, tmp_path):
+    made = []
+
+    def make(home_node, **kw):
+        made.append(Stack(broker, lake, tmp_path, home_node, **kw))
+        return made[-1]
+
+    yield make
+    for s in reversed(made):
+        s.close()
+

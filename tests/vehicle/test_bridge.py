@@ -1,0 +1,231 @@
+"""The bridge end to end: planner client <-> Mosquitto <-> guadal bridge <-> MAVLink <-> guadal sitl.
+
+One emulator and one bridge serve the protocol tests of this module (each test starts with a
+fresh seq range and a known position); the failsafe tests get their own stack with a short
+timeout, so a slow moment elsewhere cannot trip it.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from vehicle_support import Stack
+from guadal_cli.fleet import messages
+from guadal_cli.maps.format import haversine_m
+
+HOLD, GUIDED = 4, 15
+
+
+@pytest.fixture(scope="module")
+def shared(broker, lake, tmp_path_factory):
+    m, g, _ = lake
+    truth = tmp_path_factory.mktemp("truth") / "truth.csv"
+    # a distinct value per cell: 10*row + col
+    np.savetxt(truth, np.add.outer(10.0 * np.arange(m.shape[0]), np.arange(m.shape[1])), delimiter=",")
+    s = Stack(broker, lake, tmp_path_factory.mktemp("bridge"), home_node=g.node_at(1, 1), speedup=10.0,
+              bridge_args=["--sensor", f"synthetic:{truth}", "--failsafe-timeout", "120"])
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def planner(shared):
+    """A fresh seq range for each test (seqs only grow), with the message log cleared."""
+    p = shared.planner
+    p.seq = max(p.seq, shared_status(shared)["last_seq"]) + 100
+    p.forget()
+    return p
+
+
+def shared_status(s) -> dict:
+    return s.planner.wait_status(lambda st: True, 5, "no status")
+
+
+def on_water(m, lat, lon) -> bool:
+    cell = m.rowcol_of(lat, lon)
+    return cell is not None and bool(m.mask[cell])
+
+
+def test_goto_is_accepted_then_reached_at_the_target(shared, planner):
+    g = shared.graph
+    target = g.node_at(5, 3)
+    seq = planner.goto(target, g)
+    accepted = planner.wait_ack(seq, "accepted", 5)
+    assert accepted["node"] == target
+    reached = planner.wait_ack(seq, "reached", 20)
+    assert haversine_m(reached["lat"], reached["lon"], g.lat[target], g.lon[target]) <= 2.0
+    # the autopilot's own GPS, reported after the ack, says the boat is there
+    seen = len(planner.decoded("telemetry"))
+    planner.wait(lambda: len(planner.decoded("telemetry")) > seen + 2, 5, "no telemetry after arrival")
+    for fix in planner.decoded("telemetry")[seen:]:
+        assert haversine_m(fix["lat"], fix["lon"], g.lat[target], g.lon[target]) <= 2.5
+        assert fix["mode"] == "GUIDED" and fix["armed"] is True and isinstance(fix["t"], float)
+
+
+def test_path_around_the_land_tongue_never_crosses_land(shared, planner):
+    m, g = shared.map, shared.graph
+    start, target = g.node_at(1, 2), g.node_at(1, 6)  # the straight line crosses the tongue
+    planner.wait_ack(planner.goto(start, g), "reached", 20)
+    planner.forget()
+    seq = planner.goto(target, g)
+    planner.wait_ack(seq, "reached", 20)
+    fixes = [(f["lat"], f["lon"]) for f in planner.decoded("telemetry")]
+    assert len(fixes) >= 10, "too few GPS fixes to judge the route"
+    for (a_lat, a_lon), (b_lat, b_lon) in zip(fixes, fixes[1:]):
+        assert on_water(m, a_lat, a_lon), f"GPS fix {a_lat},{a_lon} is on land"
+        assert on_water(m, (a_lat + b_lat) / 2, (a_lon + b_lon) / 2), "the boat crossed land between two fixes"
+    # it went round the southern tip: the only water joining the basins is row 5
+    assert max(m.rowcol_of(lat, lon)[0] for lat, lon in fixes) == 5
+
+
+def test_targets_off_the_water_are_rejected_with_a_reason(shared, planner):
+    m, g = shared.map, shared.graph
+    node = g.node_at(2, 2)
+    land = planner.send("goto", node=node, lat=float(m.lat[2, 4]), lon=float(m.lon[2, 4]))
+    off_map = planner.send("goto", node=node, lat=float(m.lat[0, 0]) + 0.01, lon=float(m.lon[0, 0]))
+    other = g.node_at(2, 6)
+    mismatch = planner.send("goto", node=node, lat=float(g.lat[other]), lon=float(g.lon[other]))
+    assert "on land" in planner.wait_ack(land, "rejected", 5)["reason"]
+    assert "outside the map" in planner.wait_ack(off_map, "rejected", 5)["reason"]
+    assert f"not the node {node}" in planner.wait_ack(mismatch, "rejected", 5)["reason"]
+    assert not planner.acks(status="accepted")
+
+
+def test_duplicate_seq_repeats_the_answer_without_restarting(shared, planner):
+    g = shared.graph
+    target = g.node_at(3, 2)
+    seq = planner.goto(target, g)
+    planner.send("goto", seq=seq, node=target, lat=float(g.lat[target]), lon=float(g.lon[target]))
+    planner.wait(lambda: len(planner.acks(seq, "accepted")) == 2, 5, "the duplicate was not answered 'accepted'")
+    first = planner.wait_ack(seq, "reached", 20)
+    before = shared_status(shared)["counters"]["duplicate_seq"]
+    planner.send("goto", seq=seq, node=target, lat=float(g.lat[target]), lon=float(g.lon[target]))
+    planner.wait(lambda: len(planner.acks(seq, "reached")) == 2, 5, "the duplicate was not answered 'reached'")
+    again = planner.acks(seq, "reached")[-1]
+    # the same arrival, reported again: nothing was re-planned or re-driven
+    assert (again["lat"], again["lon"]) == (first["lat"], first["lon"])
+    assert len(planner.acks(seq, "accepted")) == 2
+    planner.wait_status(lambda st: st["counters"]["duplicate_seq"] == before + 1, 5, "duplicate not counted")
+
+
+def test_older_seq_is_ignored_and_counted(shared, planner):
+    g = shared.graph
+    here = g.node_at(3, 2)
+    newest = planner.goto(here, g)
+    planner.wait_ack(newest, "reached", 20)
+    before = shared_status(shared)["counters"]["stale_seq"]
+    far = g.node_at(5, 7)
+    planner.send("goto", seq=newest - 5, node=far, lat=float(g.lat[far]), lon=float(g.lon[far]))
+    planner.wait_status(lambda st: st["counters"]["stale_seq"] == before + 1, 5, "stale seq not counted")
+    assert not planner.acks(newest - 5)
+    assert shared_status(shared)["goal"] == {"seq": newest, "node": here, "status": "reached"}
+
+
+def test_bad_payloads_are_counted_and_the_bridge_keeps_answering(shared, planner):
+    before = shared_status(shared)["counters"]
+    planner.raw(b"{not json")
+    planner.raw(b'{"v":1,"type":"goto","seq":1,"node":0,"lat":37.4,"pad":"' + b"x" * 20_000 + b'"}')
+    planner.raw(messages.encode("dance", seq=planner.seq + 1))
+    planner.raw(json.dumps({"v": 2, "type": "ping", "seq": planner.seq + 1}).encode())
+    planner.raw(messages.encode("ping", seq=planner.seq + 1, vehicle=7))
+    planner.wait_status(
+        lambda st: st["counters"]["bad_payload"] == before["bad_payload"] + 4
+        and st["counters"]["wrong_vehicle"] == before["wrong_vehicle"] + 1,
+        5, "bad payloads not counted",
+    )
+    log = shared.log()
+    assert "exceeds the 16384-byte limit" in log and "unknown message type 'dance'" in log
+    seq = planner.send("measure", node=0)
+    planner.wait(lambda: planner.decoded("measurement"), 5, "no measurement after the bad payloads")
+    assert planner.decoded("measurement")[-1]["seq"] == seq
+
+
+def test_measure_reads_the_synthetic_truth_where_the_boat_is(shared, planner):
+    m, g = shared.map, shared.graph
+    target = g.node_at(2, 3)
+    planner.wait_ack(planner.goto(target, g), "reached", 20)
+    seq = planner.send("measure", node=target)
+    planner.wait(lambda: planner.decoded("measurement"), 5, "no measurement")
+    sample = planner.decoded("measurement")[-1]
+    assert sample["seq"] == seq and sample["node"] == target
+    assert sample["value"] == 23.0  # the truth grid holds 10*row + col
+    assert m.rowcol_of(sample["lat"], sample["lon"]) == (2, 3)
+    assert sample["t"] > 0
+
+
+def test_status_is_retained_with_counters(shared, broker):
+    from fleet_support import Inbox
+
+    late = Inbox(broker.port)  # a planner that connects later still learns the vehicle's state
+    try:
+        late.subscribe(f"{shared.fleet}/vehicle/0/status")
+        late.wait(lambda: late.messages, 5, "no retained status")
+        status = json.loads(late.messages[0].payload)
+        assert late.messages[0].retain and status["state"] == "online"
+        assert set(status["counters"]) >= {"bad_payload", "stale_seq", "duplicate_seq", "command_failed", "failsafe"}
+    finally:
+        late.close()
+
+
+# --- failsafe --------------------------------------------------------------------------------------
+PLANNER_WITH_WILL = textwrap.dedent(
+    """
+    import sys, time
+    import paho.mqtt.client as mqtt
+    from guadal_cli.fleet import messages
+    port, fleet = int(sys.argv[1]), sys.argv[2]
+    topic = messages.topic(fleet, None, "status")
+    c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+    c.will_set(topic, messages.encode("status", state="offline"), qos=1, retain=True)
+    c.connect("127.0.0.1", port, keepalive=5)
+    c.loop_start()
+    c.publish(topic, messages.encode("status", state="online"), qos=1, retain=True).wait_for_publish(5)
+    print("up", flush=True)
+    time.sleep(60)
+    """
+)
+
+
+def test_failsafe_holds_on_silence_and_on_the_planners_last_will(broker, lake, tmp_path):
+    s = Stack(broker, lake, tmp_path, home_node=lake[1].node_at(5, 1), speedup=10.0,
+              bridge_args=["--failsafe-timeout", "1.5"])
+    try:
+        g, p = s.graph, s.planner
+        target = g.node_at(5, 7)  # far enough that the boat is still driving when the planner falls silent
+        seq = p.goto(target, g)
+        p.wait_ack(seq, "accepted", 5)
+        s.emulator.heartbeat(lambda hb: hb.custom_mode == GUIDED, 5, "the emulator never entered GUIDED")
+        status = p.wait_status(lambda st: st["state"] == "failsafe", 8, "no failsafe after planner silence")
+        assert "no planner message" in status["failsafe_reason"]
+        s.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "the emulator is not in HOLD after the failsafe")
+        assert p.acks(seq, "failed"), "the interrupted goto was not reported"
+
+        # the next goto resumes: GUIDED again, and it gets there (the planner is alive again: it pings)
+        seq = p.goto(target, g)
+        p.keep_alive(0.3)
+        p.wait_ack(seq, "accepted", 5)
+        p.wait_status(lambda st: st["state"] == "online", 5, "goto did not resume from failsafe")
+        s.emulator.heartbeat(lambda hb: hb.custom_mode == GUIDED, 5, "no GUIDED after resuming")
+        p.wait_ack(seq, "reached", 20)
+
+        # a planner process that dies without a word: the broker publishes its last will
+        dying = subprocess.Popen([sys.executable, "-c", PLANNER_WITH_WILL, str(broker.port), s.fleet],
+                                 stdout=subprocess.PIPE, text=True)
+        try:
+            assert dying.stdout.readline().strip() == "up"
+            dying.kill()
+        finally:
+            dying.wait(5)
+        status = p.wait_status(lambda st: st["state"] == "failsafe", 12, "no failsafe after the planner's last will")
+        assert status["failsafe_reason"] == "the planner went offline"
+        s.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "the emulator is not in HOLD after the last will")
+        assert status["counters"]["failsafe"] == 2
+        assert "FAILSAFE" in s.log()
+    finally:
+        s.close()

@@ -1,0 +1,181 @@
+"""Real parts for the bridge tests: the MAVLink boat emulator and the bridge as subprocesses, and
+a paho client acting as the planner."""
+
+from __future__ import annotations
+
+import json
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import uuid
+from pathlib import Path
+
+from fleet_support import Inbox
+from guadal_cli.fleet import messages
+from guadal_cli.graph import NavGraph
+
+GUADAL = [sys.executable, "-m", "guadal_cli"]
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+
+
+def read_json_line(proc: subprocess.Popen, timeout: float, what: str) -> dict:
+    """The first JSON line a process prints, without blocking past ``timeout``."""
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: lines.put(proc.stdout.readline()), daemon=True).start()
+    try:
+        line = lines.get(timeout=timeout)
+    except queue.Empty:
+        raise AssertionError(f"{what} printed nothing within {timeout} s") from None
+    assert line, f"{what} exited ({proc.poll()}) before printing its ready line"
+    return json.loads(line)
+
+
+class Emulator:
+    """``guadal sitl`` for one boat, plus a UDP listener on its telemetry stream (to see its modes)."""
+
+    def __init__(self, home, speedup=40.0, serial=False, max_speed=2.0):
+        from pymavlink import mavutil
+
+        self.stream = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=250)
+        udp_port = self.stream.port.getsockname()[1]
+        cmd = GUADAL + ["sitl", "--vehicles", "1", "--home", f"{home[0]},{home[1]}", "--speedup", str(speedup),
+                        "--base-port", "0", "--max-speed", str(max_speed), "--udp-out", f"127.0.0.1:{udp_port}"]
+        if serial:
+            cmd += ["--serial", "pty"]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        self.ready = read_json_line(self.proc, 20, "guadal sitl")
+        self.vehicle = self.ready["vehicles"][0]
+        self.tcp = f"tcp:127.0.0.1:{self.vehicle['tcp']}"
+
+    def heartbeat(self, predicate, timeout: float, what: str):
+        """Wait for an emulator heartbeat that satisfies ``predicate``."""
+        import time
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            msg = self.stream.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
+            if msg is not None and predicate(msg):
+                return msg
+        raise AssertionError(f"{what} within {timeout} s")
+
+    def close(self):
+        _stop(self.proc)
+        self.stream.close()
+
+
+class Planner(Inbox):
+    """The planner's side of the protocol, on a real paho client."""
+
+    def __init__(self, broker, fleet: str, vehicle: int = 0, **kw):
+        self.fleet, self.vehicle, self.seq = fleet, vehicle, 0
+        self._seq_lock = threading.Lock()
+        self._pinging = threading.Event()
+        super().__init__(broker.port, **kw)
+        self.subscribe(f"{fleet}/vehicle/{vehicle}/#")
+
+    def forget(self) -> None:
+        """Drop what was received so far, except the newest status (it is retained state)."""
+        with self._cond:
+            status = self.on(self.topic("status"))[-1:]
+            self.messages[:] = status
+
+    def topic(self, channel):
+        return messages.topic(self.fleet, self.vehicle, channel)
+
+    def send(self, kind: str, seq: int | None = None, **fields) -> int:
+        with self._seq_lock:
+            if seq is None:
+                self.seq += 1
+                seq = self.seq
+            self.raw(messages.encode(kind, seq=seq, **fields))
+        return seq
+
+    def keep_alive(self, interval: float = 0.3) -> None:
+        """Ping in the background, as a live planner does, until :meth:`stop_pinging`."""
+        self._pinging.set()
+
+        def loop():
+            while self._pinging.is_set():
+                self.send("ping")
+                self._pinging_wait.wait(interval)
+
+        self._pinging_wait = threading.Event()
+        threading.Thread(target=loop, daemon=True).start()
+
+    def stop_pinging(self) -> None:
+        self._pinging.clear()
+        if hasattr(self, "_pinging_wait"):
+            self._pinging_wait.set()
+
+    def raw(self, payload: bytes) -> None:
+        self.client.publish(self.topic("command"), payload, qos=1).wait_for_publish(5)
+
+    def decoded(self, channel: str) -> list[dict]:
+        return [json.loads(m.payload) for m in self.on(self.topic(channel)) if m.payload]
+
+    def acks(self, seq: int | None = None, status: str | None = None) -> list[dict]:
+        return [a for a in self.decoded("ack") if (seq is None or a["seq"] == seq) and (status is None or a["status"] == status)]
+
+    def wait_ack(self, seq: int, status: str, timeout: float = 15.0) -> dict:
+        self.wait(lambda: self.acks(seq, status), timeout, f"no '{status}' ack for seq {seq}")
+        return self.acks(seq, status)[-1]
+
+    def status(self) -> dict | None:
+        found = self.decoded("status")
+        return found[-1] if found else None
+
+    def wait_status(self, predicate, timeout: float, what: str) -> dict:
+        self.wait(lambda: (s := self.status()) is not None and predicate(s), timeout, what)
+        return self.status()
+
+    def goto(self, node: int, graph: NavGraph, **fields) -> int:
+        return self.send("goto", node=node, lat=float(graph.lat[node]), lon=float(graph.lon[node]), **fields)
+
+
+class Stack:
+    """Emulator + bridge + planner client for one test, torn down in reverse order."""
+
+    def __init__(self, broker, lake, tmp_path: Path, home_node: int, bridge_args=(), serial=False, speedup=40.0,
+                 fleet=None, mavlink=None, start_planner_online=True):
+        self.map, self.graph, self.map_path = lake
+        self.broker = broker
+        self.fleet = fleet or f"t{uuid.uuid4().hex[:8]}"
+        home = (float(self.graph.lat[home_node]), float(self.graph.lon[home_node]))
+        self.emulator = Emulator(home, speedup=speedup, serial=serial)
+        self.planner = Planner(broker, self.fleet)
+        if start_planner_online:
+            self.planner.client.publish(messages.topic(self.fleet, None, "status"),
+                                        messages.encode("status", state="online"), qos=1, retain=True).wait_for_publish(5)
+        link = mavlink or (self.emulator.vehicle["serial"] if serial else self.emulator.tcp)
+        self.log_path = tmp_path / "bridge.log"
+        cmd = GUADAL + ["bridge", "--vehicle-id", "0", "--mavlink", link, "--broker", broker.url, "--map",
+                        str(self.map_path), "--fleet", self.fleet, "--arm", "--telemetry-hz", "10",
+                        "--connect-timeout", "15", *bridge_args]
+        self._log = open(self.log_path, "w")
+        self.bridge = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, text=True)
+        self.planner.wait_status(lambda s: s["state"] == "online" and s.get("armed"), 20,
+                                 f"bridge not online and armed (log: {self.log()})")
+
+    def log(self) -> str:
+        self._log.flush()
+        return self.log_path.read_text()
+
+    def close(self):
+        self.planner.stop_pinging()
+        _stop(self.bridge)
+        self._log.close()
+        self.planner.close()
+        self.emulator.close()
+
+
