@@ -235,6 +235,25 @@ def test_replaced_target_gets_no_arrival_and_disarmed_boat_none_at_all(gcs):
     assert len(reached) == 1
 
 
+def test_velocity_target_steers_then_times_out_after_three_seconds(gcs):
+    conn, sysid = gcs(1)
+    assert set_mode(conn, sysid, GUIDED) == ACCEPTED
+    assert arm(conn, sysid) == ACCEPTED
+    velocity_only = 0x0DC7  # position, accel, yaw, yaw rate ignored; vx/vy (north/east) used
+
+    def keep_streaming(msg) -> bool:
+        """Like a GCS: re-send the velocity on every position report until the boat runs east."""
+        if msg.vy > 25:  # cm/s eastwards
+            return True
+        conn.mav.set_position_target_global_int_send(0, sysid, 1, 6, velocity_only, 0, 0, 0, 0.0, 0.3, 0, 0, 0, 0, 0, 0)
+        return False
+
+    moving = wait_for(conn, "GLOBAL_POSITION_INT", keep_streaming)
+    assert abs(moving.vx) < 10 and moving.vy <= 31
+    wait_for(conn, "STATUSTEXT", lambda m: m.text == "target not received last 3secs, stopping")
+    wait_for(conn, "VFR_HUD", lambda m: m.groundspeed == 0)
+
+
 def test_mission_item_int_guided_waypoint_is_acknowledged(gcs):
     conn, sysid = gcs(2)
     here, _ = _position(conn, sysid)
