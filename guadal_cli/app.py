@@ -13,6 +13,7 @@ from .commands import mission as mission_cmd
 from .commands import plugins as plugins_cmd
 from .commands import sitl as sitl_cmd
 from .commands import stack as stack_cmd
+from .commands import report as report_cmd
 
 app = typer.Typer(
     name="guadal",
@@ -42,6 +43,7 @@ map_cmd.register(app)
 sitl_cmd.register(app)
 bridge_cmd.register(app)
 stack_cmd.register(app)
+report_cmd.register(app)
 
 
 def main() -> None:

@@ -1,0 +1,99 @@
+"""``guadal report``: compare run directories as tables, figures, animations and geo files."""
+
+from __future__ import annotations
+
+import sys
+from contextlib import nullcontext
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from ..console import console, err_console, fail, print_json
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("report")
+    def report(
+        runs: list[Path] = typer.Argument(..., help="Run directories, or folders that contain them."),
+        output: Optional[Path] = typer.Option(None, "--output", "-o", help="Folder for the HTML page, figures, animations and geo files; without it only the tables are printed."),
+        group_by: str = typer.Option("algorithm.type", "--group-by", "-g", help="Comma-separated dotted fields of the resolved mission to group by."),
+        x_axis: str = typer.Option("distance", "--x", help="Metric curves against 'distance' (fleet metres) or 'time' (mission seconds)."),
+        metrics: Optional[str] = typer.Option(None, "--metrics", help="Comma-separated metrics to plot (default: coverage and every task metric)."),
+        animate: str = typer.Option("gif", "--animate", help="Step-by-step animation of the first run of each group: gif, mp4 (needs ffmpeg) or none."),
+        frames: int = typer.Option(120, "--frames", help="At most this many animation frames (steps are subsampled)."),
+        as_csv: bool = typer.Option(False, "--csv", help="Print the tables as CSV (runs, a blank line, groups)."),
+        as_json: bool = typer.Option(False, "--json", help="Print the tables as JSON."),
+        as_markdown: bool = typer.Option(False, "--markdown", help="Print the tables as Markdown."),
+    ) -> None:
+        """Compare runs: per-run and per-group tables; with --output also figures, animations, GeoJSON/KML, ground-station plans and one HTML page."""
+        from ..errors import GuadalError
+        from ..report import tables
+        from ..report.build import Options, build, write
+        from ..report.runs import find_runs
+
+        if sum((as_csv, as_json, as_markdown)) > 1:
+            raise fail("choose one of --csv, --json and --markdown.")
+        options = Options(
+            group_by=[f.strip() for f in group_by.split(",") if f.strip()],
+            x_axis=x_axis,
+            metrics=[m.strip() for m in metrics.split(",") if m.strip()] if metrics else None,
+            animate=None if animate.lower() == "none" else animate.lower(),
+            max_frames=frames,
+        )
+        quiet = as_csv or as_json or as_markdown
+        try:
+            found = find_runs(runs)
+            result = build(found, options)
+            if output is not None:
+                with console.status("writing report", spinner="dots") if not quiet else nullcontext() as status:
+                    def on_file(what: str) -> None:
+                        if status is not None:
+                            status.update(f"writing report: {what}")
+                    write(result, output, options, on_file)
+        except GuadalError as exc:
+            raise fail(exc)
+        for warning in result.warnings:
+            err_console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
+        if as_json:
+            print_json(result.as_json())
+        elif as_csv:
+            sys.stdout.write(tables.to_csv(result.run_columns, result.run_rows) + "\n")
+            sys.stdout.write(tables.to_csv(result.group_columns, result.group_rows))
+        elif as_markdown:
+            sys.stdout.write(result.markdown())
+        else:
+            _show(f"{len(found)} runs (final values)", result.run_columns,
+                  [[tables.cell_text(v) for v in row] for row in result.run_rows], drop_constant=("level", "vehicles"))
+            gcols, grows = tables.folded(result.group_columns, result.group_rows)
+            _show(f"{len(result.groups)} groups by {', '.join(options.group_by)} (mean ± std over complete runs)", gcols, grows)
+            if output is not None:
+                console.print(f"report: {output / 'report.html'}")
+
+
+#: shorter headers where the terminal is narrow; files and --csv/--json keep the CSV names
+SHORT = {"total_distance": "distance m", "time_s": "time s", "coverage": "cover", "vehicles": "veh",
+         "gps_offtrack_mean_m": "gps off m", "gps_offtrack_max_m": "gps max m"}
+
+
+def _show(title: str, columns: list[str], rows: list[list[str]], drop_constant=()) -> None:
+    """A rich table; columns that hold one value for every row are named in the title instead."""
+    from rich.table import Table
+
+    keep = list(range(len(columns)))
+    notes = []
+    for name in drop_constant:
+        if name in columns and rows and len({r[columns.index(name)] for r in rows}) == 1:
+            keep.remove(columns.index(name))
+            notes.append(f"{name} {rows[0][columns.index(name)]}")
+    table = Table(title=title + (f" — {', '.join(notes)}" if notes else ""), title_justify="left")
+    for i in keep:
+        first = i == 0
+        header = SHORT.get(columns[i], columns[i])
+        table.add_column(header, no_wrap=not first, overflow="fold" if first else "ellipsis", min_width=min(len(header), 24) if first else None,
+                         justify="left" if first or columns[i] in ("status", "algorithm") else "right")
+    status = columns.index("status") if "status" in columns else None
+    for row in rows:
+        style = None if status is None or row[status] == "complete" else "yellow"
+        table.add_row(*(row[i] for i in keep), style=style)
+    console.print(table)

@@ -1,0 +1,181 @@
+"""A mission step by step, like the simulator's view: fields, trails, samples, vehicles as crosses.
+
+Run directories keep only the final model, so the model at each frame is rebuilt by replaying the
+recorded samples into a fresh copy of the run's environment (same plugin, same config, same
+seed). Where that is impossible (plugin not installed, map gone) the frames show what the files
+hold: the ground truth or the bare map, with the vehicles moving over it.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from PIL import Image
+
+from .. import plugins
+from ..errors import GuadalError
+from ..fleet.base import Measurement
+from ..graph import NavGraph
+from ..maps.format import load_map
+from .plots import draw_field, field_panels, run_grid, shared_limits, vehicle_colour
+from .runs import Run, file_stem
+
+MAX_FRAMES = 120
+FPS = 8
+DPI = 80
+FORMATS = ("gif", "mp4")
+TITLES = {"ground_truth": "ground truth", "mean": "estimated mean", "std": "uncertainty (std)"}
+
+
+def ffmpeg_available() -> bool:
+    return shutil.which("ffmpeg") is not None
+
+
+def frame_steps(last_step: int, max_frames: int = MAX_FRAMES) -> list[int]:
+    """Steps to draw: every step when few, else evenly spaced, always first and last."""
+    if last_step + 1 <= max_frames:
+        return list(range(last_step + 1))
+    return sorted({int(round(s)) for s in np.linspace(0, last_step, max_frames)})
+
+
+class Replay:
+    """A fresh environment of the run's kind that takes the recorded samples step by step."""
+
+    def __init__(self, run: Run):
+        section = run.mission.get("environment")
+        if not isinstance(section, dict) or not run.map_path:
+            raise GuadalError(f"run '{run.name}' has no environment section or map to replay.")
+        self.graph = NavGraph(load_map(run.map_path))
+        env_cls, env_cfg = plugins.build_config("environment", dict(section), "environment")
+        self.env = env_cls(env_cfg, self.graph, base_dir=run.path)
+        seed = int(run.seed or 0)
+        env_seed = int(np.random.SeedSequence(seed).generate_state(2)[0])
+        self.env.reset(env_seed)
+        m = run.measurements
+        self._steps = m.get("step", np.array([]))
+        self._rows = [
+            Measurement(vehicle=int(v), node=int(n), value=float(val), lat=float(la), lon=float(lo), time_s=float(t))
+            for v, n, val, la, lo, t in zip(m.get("vehicle", []), m.get("node", []), m.get("value", []),
+                                             m.get("lat", []), m.get("lon", []), m.get("time_s", []))
+        ]
+        self._done = 0
+
+    def fields_at(self, step: int) -> dict[str, np.ndarray]:
+        """The model after every sample up to and including ``step``."""
+        upto = int(np.searchsorted(self._steps, step, side="right"))
+        if upto > self._done:
+            self.env.update(self._rows[self._done : upto])
+            self._done = upto
+        return {k: np.asarray(v, dtype=float) for k, v in self.env.observation_fields().items()}
+
+
+def animate(run: Run, out_dir: Path, fmt: str = "gif", max_frames: int = MAX_FRAMES) -> tuple[Path | None, str | None]:
+    """Write ``animation_<run>.<fmt>``; return its path and a warning sentence if it is degraded."""
+    grid = run_grid(run)
+    plan = run.track("plan")
+    if grid is None or not plan:
+        return None, f"run '{run.name}' has no trajectory or fields to animate."
+    warning = None
+    try:
+        replay: Replay | None = Replay(run)
+        first = replay.fields_at(-1)
+    except Exception as exc:  # any plugin failure only degrades the picture
+        replay, first = None, {}
+        warning = f"run '{run.name}': the model could not be replayed ({exc}); the animation shows the vehicles only."
+    panels = []
+    if "ground_truth" in run.fields:
+        panels.append("ground_truth")
+    panels += list(first)[: 3 - len(panels)]
+    if not panels:
+        panels = [c for c, _ in field_panels(run)][:1]
+    steps_col = plan[next(iter(plan))]["step"]
+    last = int(np.nanmax(steps_col)) if len(steps_col) else 0
+    steps = frame_steps(last, max_frames)
+    node_rows, node_cols = _node_cells(run, grid)
+
+    fig = Figure(figsize=(3.4 * max(1, len(panels)), 2.8), layout="constrained")
+    images, trails, crosses, samples = [], [], [], []
+    for k, column in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), k + 1)
+        static = run.fields.get(column) if replay is None or column not in first else first[column]
+        vmin, vmax = shared_limits(run, column)
+        if column == "std" and replay is not None:
+            vmin, vmax = 0.0, float(np.nanmax(first["std"])) or 1.0
+        images.append(draw_field(ax, grid, static if static is not None else np.zeros(len(grid.rows)),
+                                 "magma" if column == "std" else "viridis", vmin, vmax))
+        ax.set_title(TITLES.get(column, column), fontsize="small")
+        samples.append(ax.scatter([], [], s=4, c="white", edgecolors="black", linewidths=0.3, zorder=3))
+        for v in plan:
+            (trail,) = ax.plot([], [], color=vehicle_colour(v), linewidth=1.0, alpha=0.9, zorder=4)
+            (cross,) = ax.plot([], [], marker="x", markersize=9, markeredgewidth=2.2, color=vehicle_colour(v), linestyle="none", zorder=5)
+            trails.append((v, trail))
+            crosses.append((v, cross))
+    title = fig.suptitle(f"{run.name} ({run.algorithm}): step {last}, 0000 m")  # room for the longest title
+    meas_steps = run.measurements.get("step", np.array([]))
+    meas_nodes = run.measurements.get("node", np.array([])).astype(int)
+
+    path = out_dir / f"animation_{file_stem(run.name)}.{fmt}"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    canvas = FigureCanvasAgg(fig)
+    fig.set_dpi(DPI)
+    canvas.draw()
+    fig.set_layout_engine("none")  # lay out once; every frame has the same furniture
+    distance = run.metrics.get("total_distance", np.array([]))
+    metric_steps = run.metrics.get("step", np.array([]))
+    frames = []
+    for step in steps:
+        if replay is not None:
+            fields = replay.fields_at(step)
+            for column, image in zip(panels, images):
+                if column in fields:
+                    image.set_data(grid.place(fields[column]))
+        taken = meas_nodes[meas_steps <= step]
+        offsets = np.column_stack([node_cols[taken], node_rows[taken]]) if len(taken) else np.empty((0, 2))
+        for scatter in samples:
+            scatter.set_offsets(offsets)
+        for (v, trail), (_, cross) in zip(trails, crosses):
+            rows = plan[v]
+            upto = rows["step"] <= step
+            trail.set_data(rows["col"][upto], rows["row"][upto])
+            cross.set_data(rows["col"][upto][-1:], rows["row"][upto][-1:])
+        at = np.searchsorted(metric_steps, step, side="right") - 1
+        dist = f", {distance[at]:.0f} m" if 0 <= at < len(distance) else ""
+        title.set_text(f"{run.name} ({run.algorithm}): step {step}{dist}")
+        canvas.draw()
+        frames.append(np.asarray(canvas.buffer_rgba())[..., :3].copy())
+    (write_gif if fmt == "gif" else write_mp4)(frames, path)
+    return path, warning
+
+
+def write_gif(frames: list[np.ndarray], path: Path) -> None:
+    """One palette for all frames (from the last, which shows the most), no dithering: small and quick."""
+    images = [Image.fromarray(f) for f in frames]
+    palette = images[-1].quantize(colors=128, method=Image.Quantize.MEDIANCUT)
+    quantized = [im.quantize(palette=palette, dither=Image.Dither.NONE) for im in images]
+    quantized[0].save(path, save_all=True, append_images=quantized[1:], duration=1000 // FPS, loop=0)
+
+
+def write_mp4(frames: list[np.ndarray], path: Path) -> None:
+    """Raw RGB frames piped to ffmpeg as H.264 (even frame sizes, as the codec needs)."""
+    h, w = frames[0].shape[0] // 2 * 2, frames[0].shape[1] // 2 * 2
+    cmd = [shutil.which("ffmpeg") or "ffmpeg", "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
+           "-s", f"{w}x{h}", "-r", str(FPS), "-i", "-", "-pix_fmt", "yuv420p", "-vcodec", "libx264", str(path)]
+    data = b"".join(np.ascontiguousarray(f[:h, :w]).tobytes() for f in frames)
+    result = subprocess.run(cmd, input=data, capture_output=True, check=False)
+    if result.returncode != 0:
+        raise GuadalError(f"ffmpeg could not write '{path}': {result.stderr.decode(errors='replace').strip()[:300]}")
+
+
+def _node_cells(run: Run, grid) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column of every node id, indexed by node (from fields.csv)."""
+    f = run.fields
+    nodes = f["node"].astype(int)
+    rows = np.zeros(int(nodes.max()) + 1, dtype=float)
+    cols = np.zeros_like(rows)
+    rows[nodes], cols[nodes] = f["row"], f["col"]
+    return rows, cols

@@ -1,0 +1,134 @@
+"""Report tables against the CSVs the runs wrote, grouping, and the odd cases users meet."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import statistics
+
+import pytest
+from report_support import invoke, run_mission
+from support import ROOT, run_cli
+
+from guadal_cli.errors import GuadalError
+from guadal_cli.report.build import Options, build
+from guadal_cli.report.runs import find_runs
+
+
+def last_metrics_row(run_dir) -> dict[str, float]:
+    with open(run_dir / "metrics.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return {k: float(v) for k, v in rows[-1].items()}
+
+
+def test_run_rows_are_the_last_rows_of_metrics_csv(runs_root):
+    report = build(find_runs([runs_root]), Options())
+    assert len(report.run_rows) == 4
+    for row in report.run_rows:
+        values = dict(zip(report.run_columns, row))
+        expected = last_metrics_row(runs_root / values["run"])
+        for column in ("total_distance", "time_s", "samples", "coverage", "rmse", "mean_std", "max_std"):
+            assert values[column] == expected[column], column
+        assert values["steps"] == expected["step"]
+        assert values["status"] == "complete"
+
+
+def test_two_seeds_of_two_algorithms_group_into_two_groups_of_two(runs_root):
+    report = build(find_runs([runs_root]), Options())
+    groups = {row[0]: dict(zip(report.group_columns, row)) for row in report.group_rows}
+    assert set(groups) == {"greedy", "lawnmower"}
+    for algorithm, group in groups.items():
+        finals = [last_metrics_row(runs_root / f"{algorithm}-{seed}") for seed in (1, 2)]
+        assert group["runs"] == 2
+        assert group["status"] == "complete"
+        for metric in ("rmse", "total_distance", "coverage"):
+            values = [f[metric] for f in finals]
+            assert group[f"{metric}_mean"] == pytest.approx(statistics.mean(values), rel=1e-12)
+            assert group[f"{metric}_std"] == pytest.approx(statistics.stdev(values), rel=1e-12, abs=1e-15)
+
+
+def test_group_by_several_mission_fields(runs_root):
+    report = build(find_runs([runs_root]), Options(group_by=["algorithm.type", "seed"]))
+    keys = sorted(tuple(row[:2]) for row in report.group_rows)
+    assert keys == [("greedy", "1"), ("greedy", "2"), ("lawnmower", "1"), ("lawnmower", "2")]
+    assert all(row[report.group_columns.index("runs")] == 1 for row in report.group_rows)
+
+
+def test_unknown_group_field_is_one_clear_error(runs_root):
+    with pytest.raises(GuadalError, match="--group-by field 'algorithm.typo' is in none"):
+        build(find_runs([runs_root]), Options(group_by=["algorithm.typo"]))
+
+
+def test_cli_json_csv_and_markdown_agree_with_the_csvs(runs_root):
+    out = invoke("report", runs_root, "--json")
+    assert out.exit_code == 0, out.stderr
+    data = json.loads(out.stdout)
+    by_run = {r["run"]: r for r in data["runs"]}
+    assert by_run["greedy-2"]["rmse"] == last_metrics_row(runs_root / "greedy-2")["rmse"]
+    assert {g["algorithm.type"]: g["runs"] for g in data["groups"]} == {"greedy": 2, "lawnmower": 2}
+
+    out = invoke("report", runs_root, "--csv")
+    assert out.exit_code == 0, out.stderr
+    runs_part, groups_part = out.stdout.split("\n\n")
+    rows = {r["run"]: r for r in csv.DictReader(runs_part.splitlines())}
+    assert float(rows["lawnmower-1"]["total_distance"]) == last_metrics_row(runs_root / "lawnmower-1")["total_distance"]
+    assert [r["algorithm.type"] for r in csv.DictReader(groups_part.splitlines())] == ["greedy", "lawnmower"]
+
+    out = invoke("report", runs_root, "--markdown")
+    assert out.exit_code == 0, out.stderr
+    assert "| run | status |" in out.stdout and "| greedy | complete | 2 |" in out.stdout
+
+
+def test_no_runs_found_exits_2_with_one_sentence(tmp_path):
+    (tmp_path / "empty").mkdir()
+    out = run_cli("report", tmp_path / "empty")
+    assert out.returncode == 2
+    assert "no run directories found" in out.stderr and "Traceback" not in out.stderr
+    out = invoke("report", tmp_path / "missing")
+    assert out.exit_code == 2 and "does not exist" in out.stderr
+
+
+def test_unreadable_manifest_exits_2(runs_root, tmp_path):
+    broken = tmp_path / "broken"
+    shutil.copytree(runs_root / "greedy-1", broken)
+    (broken / "manifest.json").write_text("{not json")
+    out = invoke("report", broken)
+    assert out.exit_code == 2
+    assert "unreadable manifest.json" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_interrupted_and_killed_runs_are_labelled_and_left_out_of_means(runs_root, tmp_path):
+    folder = tmp_path / "runs"
+    for name in ("greedy-1", "greedy-2"):
+        shutil.copytree(runs_root / name, folder / name)
+    shutil.copytree(runs_root / "greedy-1", folder / "greedy-killed")
+    manifest = json.loads((folder / "greedy-2" / "manifest.json").read_text())
+    manifest["status"] = "interrupted"
+    (folder / "greedy-2" / "manifest.json").write_text(json.dumps(manifest))
+    manifest["status"] = "running"
+    (folder / "greedy-killed" / "manifest.json").write_text(json.dumps(manifest))
+
+    report = build(find_runs([folder]), Options())
+    status = {row[0]: row[1] for row in report.run_rows}
+    assert status == {"greedy-1": "complete", "greedy-2": "interrupted", "greedy-killed": "unfinished"}
+    (group,) = report.group_rows
+    values = dict(zip(report.group_columns, group))
+    assert values["runs"] == 1  # only the complete run enters the mean
+    assert values["rmse_mean"] == last_metrics_row(folder / "greedy-1")["rmse"]
+    assert "1 interrupted" in values["status"] and "1 unfinished" in values["status"] and "left out" in values["status"]
+    assert any("did not complete" in w for w in report.warnings)
+
+    out = invoke("report", folder, "--markdown")
+    assert out.exit_code == 0, out.stderr
+    assert "| greedy-2 | interrupted |" in out.stdout and "| greedy-killed | unfinished |" in out.stdout
+
+
+def test_runs_on_different_maps_get_a_warning(runs_root, tmp_path):
+    other = run_mission(tmp_path, "greedy", 1, map=str(ROOT / "maps" / "reservoir.json"))
+    report = build(find_runs([runs_root / "greedy-1", other]), Options())
+    assert any("different maps" in w for w in report.warnings)
+    out = invoke("report", runs_root / "greedy-1", other)
+    assert out.exit_code == 0
+    assert "different maps" in out.stderr
+    assert not build(find_runs([runs_root]), Options()).warnings
