@@ -22,7 +22,7 @@ def register(app: typer.Typer) -> None:
     def bridge(
         vehicle_id: Optional[int] = typer.Option(None, "--vehicle-id", help="Vehicle number N (topics F/vehicle/N/...)."),
         mavlink: Optional[str] = typer.Option(None, "--mavlink", help="tcp:HOST:PORT, udpin:HOST:PORT, /dev/ttyACM0 ..."),
-        broker: Optional[str] = typer.Option(None, "--broker", help="mqtt://[user:pass@]host:port (mqtts:// for TLS)."),
+        broker: Optional[str] = typer.Option(None, "--broker", help="mqtt://host:port or mqtt://user:password@host:port (mqtts:// for TLS)."),
         map_path: Optional[str] = typer.Option(None, "--map", help="The guadal map file the planner uses."),
         fleet: Optional[str] = typer.Option(None, "--fleet", help="Topic prefix shared with the planner (default: guadal)."),
         sensor: Optional[str] = typer.Option(None, "--sensor", help="synthetic:CSV, replay:CSV or serial:/dev/ttyUSB0."),
@@ -63,8 +63,7 @@ def register(app: typer.Typer) -> None:
                 raise _Stopped()
             running["bridge"].stop.set()
 
-        signal.signal(signal.SIGTERM, on_signal)
-        signal.signal(signal.SIGINT, on_signal)
+        previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
         link = None
         try:
             bridge_obj, link = _build(settings)
@@ -78,6 +77,9 @@ def register(app: typer.Typer) -> None:
             if link is not None:
                 link.close()
             raise fail(exc)
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
 
 
 def _build(settings):

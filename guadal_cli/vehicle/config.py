@@ -89,9 +89,9 @@ def parse_broker_url(url: str) -> dict:
         parts = urlsplit(url)
         port = parts.port
     except ValueError as exc:
-        raise GuadalError(f"broker URL '{url}' is not valid ({exc}); use mqtt://[user:pass@]host:port.") from exc
+        raise GuadalError(f"broker URL '{url}' is not valid ({exc}); use mqtt://host:port or mqtt://user:password@host:port.") from exc
     if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname:
-        raise GuadalError(f"broker URL '{url}' must look like mqtt://[user:pass@]host:port (mqtts:// for TLS).")
+        raise GuadalError(f"broker URL '{url}' must look like mqtt://host:port or mqtt://user:password@host:port (mqtts:// for TLS).")
     tls = parts.scheme == "mqtts"
     return {
         "host": parts.hostname,

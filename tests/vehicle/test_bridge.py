@@ -8,6 +8,7 @@ timeout, so a slow moment elsewhere cannot trip it.
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import textwrap
@@ -28,7 +29,7 @@ def shared(broker, lake, tmp_path_factory):
     truth = tmp_path_factory.mktemp("truth") / "truth.csv"
     # a distinct value per cell: 10*row + col
     np.savetxt(truth, np.add.outer(10.0 * np.arange(m.shape[0]), np.arange(m.shape[1])), delimiter=",")
-    s = Stack(broker, lake, tmp_path_factory.mktemp("bridge"), home_node=g.node_at(1, 1), speedup=10.0,
+    s = Stack(broker, lake, tmp_path_factory.mktemp("bridge"), home_node=g.node_at(1, 1), speedup=20.0, telemetry_hz=20,
               bridge_args=["--sensor", f"synthetic:{truth}", "--failsafe-timeout", "120"])
     yield s
     s.close()
@@ -171,6 +172,17 @@ def test_status_is_retained_with_counters(shared, broker):
         assert set(status["counters"]) >= {"bad_payload", "stale_seq", "duplicate_seq", "command_failed", "failsafe"}
     finally:
         late.close()
+
+
+def test_sigterm_stops_cleanly_with_offline_status_and_hold(shared, planner):
+    """Last test on the shared stack: it stops the bridge."""
+    shared.bridge.send_signal(signal.SIGTERM)
+    assert shared.bridge.wait(10) == 0
+    status = planner.wait_status(lambda st: st["state"] == "offline", 5, "no offline status after SIGTERM")
+    assert status["vehicle"] == 0
+    shared.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "the boat was not put in HOLD on exit")
+    log = shared.log()
+    assert "Traceback" not in log and "bridge for vehicle 0 stopped" in log
 
 
 # --- failsafe --------------------------------------------------------------------------------------

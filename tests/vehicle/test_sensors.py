@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import threading
 
 import numpy as np
 import pytest
@@ -13,6 +12,7 @@ from guadal_cli.errors import GuadalError
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import Map
 from guadal_cli.vehicle.sensors import SensorContext, SensorError, build_sensor, parse_sensor_option
+from vehicle_support import Probe
 
 
 @pytest.fixture
@@ -85,29 +85,6 @@ def test_replay_bad_files_get_one_sentence(tmp_path, graph, text, message):
     (tmp_path / "s.csv").write_text(text)
     with pytest.raises(GuadalError, match=message):
         build_sensor({"type": "replay", "path": str(tmp_path / "s.csv")}, SensorContext(graph))
-
-
-class Probe(threading.Thread):
-    """A water-quality probe at the far end of a pseudo-terminal, speaking the documented protocol."""
-
-    def __init__(self, fd: int, answers: list[bytes | None]):
-        super().__init__(daemon=True)
-        self.fd, self.answers, self.requests = fd, list(answers), []
-
-    def run(self):
-        buf = b""
-        while self.answers:
-            try:
-                chunk = os.read(self.fd, 64)
-            except OSError:
-                return
-            buf += chunk
-            while b"\n" in buf and self.answers:
-                line, buf = buf.split(b"\n", 1)
-                self.requests.append(line)
-                answer = self.answers.pop(0)
-                if answer is not None:
-                    os.write(self.fd, answer)
 
 
 @pytest.fixture

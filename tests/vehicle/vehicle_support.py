@@ -4,6 +4,7 @@ a paho client acting as the planner."""
 from __future__ import annotations
 
 import json
+import os
 import queue
 import signal
 import subprocess
@@ -147,7 +148,7 @@ class Stack:
     """Emulator + bridge + planner client for one test, torn down in reverse order."""
 
     def __init__(self, broker, lake, tmp_path: Path, home_node: int, bridge_args=(), serial=False, speedup=40.0,
-                 fleet=None, mavlink=None, start_planner_online=True):
+                 fleet=None, route=None, start_planner_online=True, telemetry_hz=10):
         self.map, self.graph, self.map_path = lake
         self.broker = broker
         self.fleet = fleet or f"t{uuid.uuid4().hex[:8]}"
@@ -157,10 +158,15 @@ class Stack:
         if start_planner_online:
             self.planner.client.publish(messages.topic(self.fleet, None, "status"),
                                         messages.encode("status", state="online"), qos=1, retain=True).wait_for_publish(5)
-        link = mavlink or (self.emulator.vehicle["serial"] if serial else self.emulator.tcp)
+        self.extra: list[subprocess.Popen] = []
+        if route is not None:  # something between bridge and emulator (a MAVLink router)
+            link, router = route(self.emulator, tmp_path)
+            self.extra.append(router)
+        else:
+            link = self.emulator.vehicle["serial"] if serial else self.emulator.tcp
         self.log_path = tmp_path / "bridge.log"
         cmd = GUADAL + ["bridge", "--vehicle-id", "0", "--mavlink", link, "--broker", broker.url, "--map",
-                        str(self.map_path), "--fleet", self.fleet, "--arm", "--telemetry-hz", "10",
+                        str(self.map_path), "--fleet", self.fleet, "--arm", "--telemetry-hz", str(telemetry_hz),
                         "--connect-timeout", "15", *bridge_args]
         self._log = open(self.log_path, "w")
         self.bridge = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, text=True)
@@ -176,6 +182,31 @@ class Stack:
         _stop(self.bridge)
         self._log.close()
         self.planner.close()
+        for proc in self.extra:
+            _stop(proc)
         self.emulator.close()
 
 
+
+
+class Probe(threading.Thread):
+    """A water-quality probe at the far end of a pseudo-terminal, speaking the documented protocol."""
+
+    def __init__(self, fd: int, answers: list[bytes | None]):
+        super().__init__(daemon=True)
+        self.fd, self.answers, self.requests = fd, list(answers), []
+
+    def run(self):
+        buf = b""
+        while self.answers:
+            try:
+                chunk = os.read(self.fd, 64)
+            except OSError:
+                return
+            buf += chunk
+            while b"\n" in buf and self.answers:
+                line, buf = buf.split(b"\n", 1)
+                self.requests.append(line)
+                answer = self.answers.pop(0)
+                if answer is not None:
+                    os.write(self.fd, answer)

@@ -1,0 +1,64 @@
+"""``guadal bridge`` on bad input: one sentence, exit code 2, no traceback, nothing left running."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+from typer.testing import CliRunner
+
+from guadal_cli.app import app
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture
+def run(lake):
+    _, _, map_path = lake
+
+    def invoke(*args, config: str | None = None, tmp=None):
+        argv = ["bridge", *args]
+        if config is not None:
+            path = tmp / "bridge.yaml"
+            path.write_text(config.replace("MAP", str(map_path)))
+            argv += ["--config", str(path)]
+        result = CliRunner().invoke(app, argv)
+        return result.exit_code, result.output
+
+    return invoke
+
+
+def test_bad_settings_get_one_sentence(run, tmp_path, lake):
+    map_path = str(lake[2])
+    base = ["--vehicle-id", "0", "--mavlink", "udpin:127.0.0.1:0"]
+    cases = [
+        (base + ["--map", map_path, "--broker", "http://host:1883"], "must look like mqtt://host:port or mqtt://user:password@host:port"),
+        (base + ["--map", str(tmp_path / "nope.json")], "nope.json' does not exist"),
+        (base + ["--map", map_path, "--sensor", "synthetik:x.csv"], "Did you mean 'synthetic'?"),
+        (base + ["--map", map_path, "--sensor", "synthetic:" + str(tmp_path / "t.csv")], "sensor synthetic: file"),
+        (["--mavlink", "udpin:127.0.0.1:0", "--map", map_path], "vehicle_id: required, but missing."),
+        (base + ["--map", map_path, "--failsafe-timeout", "-1"], "failsafe_timeout: must be greater than 0"),
+    ]
+    for argv, sentence in cases:
+        code, output = run(*argv)
+        assert code == 2, output
+        assert sentence in output and "Traceback" not in output
+        assert output.count("error:") == 1
+
+
+def test_config_file_keys_are_checked(run, tmp_path):
+    code, output = run(config="vehicle_id: 0\nmavlink: udpin:127.0.0.1:0\nmap: MAP\nfailsafe_timout: 3\n", tmp=tmp_path)
+    assert code == 2 and "failsafe_timout: unknown key (allowed:" in output and "failsafe_timeout" in output
+    code, output = run(config="- just\n- a list\n", tmp=tmp_path)
+    assert code == 2 and "must be a mapping of settings" in output
+
+
+def test_no_autopilot_is_a_clear_error(run, tmp_path, lake):
+    code, output = run("--vehicle-id", "0", "--mavlink", f"udpin:127.0.0.1:{free_udp_port()}", "--map", str(lake[2]),
+                       "--connect-timeout", "0.5")
+    assert code == 2
+    assert "no autopilot heartbeat on 'udpin:127.0.0.1:" in output and "within 0.5 s" in output
