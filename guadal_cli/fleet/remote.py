@@ -42,6 +42,8 @@ log = logging.getLogger("guadal.remote")
 
 #: how many warnings of one kind are logged before the rest go to debug (they are all counted)
 _LOUD_WARNINGS = 5
+#: answers the protocol expects now and then (a re-sent command answered twice): debug only
+_EXPECTED_DROPS = {"stale", "duplicate"}
 
 
 # --- configuration -------------------------------------------------------------------------
@@ -114,7 +116,8 @@ class RemoteVehicle:
     seq: int = 0
     last_seq: int = 0
     t: float | None = None  # latest telemetry clock
-    t0: float | None = None  # telemetry clock at the end of reset
+    t0: float | None = None  # the vehicle's clock at the end of reset
+    syncing: bool = False  # waiting for a fresh clock reading to set t0
     fix: tuple[float, float] | None = None
     track: list[dict] = field(default_factory=list)
 
@@ -162,7 +165,6 @@ class RemoteFleet(Fleet):
         cfg = self.config
         client_id = cfg.client_id or f"guadal-planner-{uuid.uuid4().hex[:8]}"
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=True)
-        client.enable_logger(logging.getLogger("guadal.remote.paho"))
         if cfg.username is not None:
             client.username_pw_set(cfg.username, cfg.broker_password())
         if cfg.tls:
@@ -243,7 +245,8 @@ class RemoteFleet(Fleet):
     def _drop(self, kind: str, sentence: str) -> None:
         """Count an unusable message and say why (loudly for the first few of each kind)."""
         self.dropped[kind] += 1
-        level = logging.WARNING if self.dropped[kind] <= _LOUD_WARNINGS else logging.DEBUG
+        loud = kind not in _EXPECTED_DROPS and self.dropped[kind] <= _LOUD_WARNINGS
+        level = logging.WARNING if loud else logging.DEBUG
         log.log(level, "ignored MQTT message: %s", sentence)
 
     def _on_message(self, client, userdata, message) -> None:
@@ -271,9 +274,21 @@ class RemoteFleet(Fleet):
             getattr(self, f"_on_{channel}")(self.vehicles[vid], data)
             self._cond.notify_all()
 
+    @staticmethod
+    def _clock(v: RemoteVehicle, data: dict) -> None:
+        """Acks and measurements carry the vehicle's clock too: fresher than the last fix."""
+        t = data.get("t")
+        if isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t) and (v.t is None or t > v.t):
+            v.t = float(t)
+
     def _on_ack(self, v: RemoteVehicle, data: dict) -> None:
         seq, status = data["seq"], data["status"]
         cmd = v.goto if v.goto is not None and v.goto.seq == seq else None
+        if cmd is not None:
+            self._clock(v, data)
+        if cmd is not None and v.syncing and status == "reached" and "t" in data:
+            v.syncing, v.t0 = False, v.t
+            return
         if cmd is None:
             if v.measure is not None and v.measure.seq == seq:
                 return  # a bridge may acknowledge a measure before answering it
@@ -298,6 +313,7 @@ class RemoteFleet(Fleet):
             return self._drop("stale", f"vehicle {v.id}: measurement for seq {data['seq']}, which was not asked for now.")
         if not cmd.open:
             return self._drop("duplicate", f"vehicle {v.id}: repeated measurement for seq {data['seq']}.")
+        self._clock(v, data)
         cmd.status, cmd.reply = "answered", data
 
     def _on_telemetry(self, v: RemoteVehicle, data: dict) -> None:
@@ -396,10 +412,28 @@ class RemoteFleet(Fleet):
         refused = [v.problem for v in self.vehicles if v.problem]
         if refused:
             raise GuadalError(f"the fleet could not take its start positions: {' '.join(refused)}")
+        self._start_clocks()
         with self._cond:
             for v, node in zip(self.vehicles, initial_nodes):
-                v.node, v.distance, v.t0 = int(node), 0.0, v.t
+                v.node, v.distance = int(node), 0.0
                 v.track.clear()
+
+    def _start_clocks(self) -> None:
+        """Read every vehicle's clock now that all are in place: mission time starts here.
+
+        Each autopilot has its own clock, so each gets its own origin. Asking the start goto
+        again (a duplicate seq) makes each bridge repeat its ``reached`` ack with a fresh ``t``.
+        """
+        with self._cond:
+            for v in self.vehicles:
+                v.syncing = True
+        for v in self.vehicles:
+            self._send(v.id, v.goto)
+        self._wait(lambda: not any(v.syncing for v in self.vehicles), min(5.0, self.config.reset_timeout))
+        with self._cond:
+            for v in self.vehicles:
+                if v.syncing:  # no fresh answer: the latest reading will do
+                    v.syncing, v.t0 = False, v.t
 
     def _cannot_move(self, v: RemoteVehicle) -> bool:
         """Same rule as the local fleet: no neighbour within the remaining budget."""
@@ -518,6 +552,8 @@ class RemoteFleet(Fleet):
         try:
             self._stop.set()
             if self._started:
+                if self._keeper.is_alive():
+                    self._keeper.join(5)
                 if self._connected:
                     with self._send_lock:
                         infos = [self._client.publish(msg.topic(self.config.fleet, v.id, "command"),
@@ -531,8 +567,6 @@ class RemoteFleet(Fleet):
                             break
                 self._client.disconnect()
                 self._client.loop_stop()
-                if self._keeper.is_alive():
-                    self._keeper.join(5)
         finally:
             if self._on_close is not None:
                 self._on_close()

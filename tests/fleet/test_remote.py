@@ -1,0 +1,185 @@
+"""RemoteFleet against a real stack: Mosquitto, the MAVLink emulator and one bridge per boat.
+
+One stack serves the module (starting one costs seconds); the test that stops a bridge runs last.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import pytest
+
+from fleet_support import Inbox, wait_for
+from guadal_cli.errors import GuadalError
+from guadal_cli.fleet import messages as msg
+from guadal_cli.fleet.broker import start_broker
+from guadal_cli.fleet.remote import RemoteFleet, SitlConfig
+from guadal_cli.graph import NavGraph
+from guadal_cli.maps.format import load_map
+from guadal_cli.mission import auto_positions
+from guadal_cli.stack import Stack
+from support import LAKE
+
+N = 3
+
+
+@pytest.fixture(scope="module")
+def graph():
+    return NavGraph(load_map(LAKE))
+
+
+@pytest.fixture(scope="module")
+def stack(graph):
+    homes = [(float(graph.lat[n]), float(graph.lon[n])) for n in auto_positions(graph, N)]
+    s = Stack.launch(map_path=LAKE, vehicles=N, homes=homes, speedup=100, broker_kind="mosquitto", timeout=60)
+    yield s
+    s.down()
+
+
+def make_fleet(graph, port, max_distance=200.0, **overrides):
+    settings = {"hop_timeout": 30, "reset_timeout": 60, "connect_timeout": 20, **overrides}
+    config = SitlConfig(level="sitl", port=port, **settings)
+    return RemoteFleet(graph, N, max_distance, lambda v, node: float(node), config)
+
+
+def drive(fleet, targets):
+    """The runner's inner loop: hops until every vehicle reached its target or is done."""
+    reached = {v: False for v in targets}
+    while not all(reached.values()):
+        reached, done = fleet.move(targets)
+    return done
+
+
+def test_hops_move_the_boats_and_count_graph_metres(graph, stack):
+    start = auto_positions(graph, N)
+    fleet = make_fleet(graph, stack.broker_port)
+    try:
+        fleet.reset(start)
+        assert fleet.positions == dict(enumerate(start)) and fleet.distances == {0: 0.0, 1: 0.0, 2: 0.0}
+        hops = {v: graph.neighbors(n)[0] for v, n in enumerate(start)}
+        hops = {v: t for v, t in hops.items() if t not in start}
+        reached, done = fleet.move(hops)
+        assert all(reached.values()) and not any(done.values())
+        for v, target in hops.items():
+            assert fleet.positions[v] == target
+            assert fleet.distances[v] == pytest.approx(graph.edge_length(start[v], target))
+        assert fleet.mission_time > 0  # the boats' own clock advanced
+        samples = fleet.take_measurement()
+        assert [(m.vehicle, m.node, m.value) for m in samples] == [(v, n, float(n)) for v, n in fleet.positions.items()]
+        track: list[dict] = []
+        wait_for(lambda: track.extend(fleet.track_rows()) or track, 10, "no GPS fix was recorded")
+        assert set(track[0]) == {"vehicle", "lat", "lon", "time_s"} and track[0]["time_s"] >= 0
+        # a re-sent command may be answered twice (stale/duplicate); nothing else may be dropped
+        assert set(fleet.dropped) <= {"stale", "duplicate"}
+    finally:
+        fleet.close()
+
+
+def test_bad_payloads_are_counted_and_the_mission_goes_on(graph, stack):
+    start = auto_positions(graph, N)
+    fleet = make_fleet(graph, stack.broker_port)
+    raw = Inbox(stack.broker_port)
+    try:
+        fleet.reset(start)
+        ack = msg.topic("guadal", 0, "ack")
+        bad = [
+            (ack, b"{not json"),
+            (ack, b"x" * 20_000),  # oversized
+            (ack, json.dumps({"v": 1, "type": "teleport", "seq": 1}).encode()),  # unknown type
+            (ack, json.dumps({"v": 1, "type": "ack", "seq": "7", "status": "reached"}).encode()),  # wrong field type
+            (msg.topic("guadal", 7, "ack"), msg.encode("ack", seq=1, status="reached")),  # unknown vehicle
+            (ack, msg.encode("ack", seq=fleet.vehicles[0].goto.seq - 1, status="reached")),  # stale seq
+            (ack, msg.encode("ack", seq=fleet.vehicles[0].goto.seq, status="reached")),  # duplicate of the reset's
+        ]
+        before = fleet.dropped.copy()
+        for name, payload in bad:
+            raw.client.publish(name, payload, qos=1).wait_for_publish(10)
+        expected = {"malformed": 4, "unknown_vehicle": 1, "stale": 1, "duplicate": 1}
+        # (answers to the previous test's last commands may add stale ones: count from here)
+        wait_for(lambda: all(fleet.dropped[k] - before[k] >= n for k, n in expected.items()), 10,
+                 "the bad messages were not all counted")
+        assert set(fleet.dropped) <= set(expected)  # no handler error, nothing else
+        target = next(n for n in graph.neighbors(start[0]) if n not in start)
+        done = drive(fleet, {0: target})
+        assert fleet.positions[0] == target and not done[0]
+    finally:
+        raw.close()
+        fleet.close()
+
+
+def test_broker_restart_mid_mission_loses_no_command(graph, stack):
+    start = auto_positions(graph, N)
+    fleet = make_fleet(graph, stack.broker_port, resend_interval=1.0)
+    # distinct targets 20-30 m away: several hops each
+    ring = [n for n in range(graph.n_nodes) if 20 <= graph.distance(start[1], n) <= 30 and n not in start]
+    far = dict(enumerate(ring[:: max(1, len(ring) // N)][:N]))
+    outcome: dict = {}
+
+    def mission():
+        try:
+            outcome["done"] = drive(fleet, far)
+        except Exception as exc:  # reported by the assertion below
+            outcome["error"] = exc
+
+    broker = stack.processes[0]
+    try:
+        fleet.reset(start)
+        runner = threading.Thread(target=mission)
+        runner.start()
+        wait_for(lambda: all(v.goto.open for v in fleet.vehicles), 10, "the hops did not start")
+        broker.popen.kill()  # the broker dies with commands in flight
+        broker.popen.wait(5)
+        wait_for(lambda: not fleet._connected, 10, "the fleet did not notice the broker's death")
+        replacement = start_broker("mosquitto", port=stack.broker_port)
+        broker.popen = replacement.process  # so the stack stops the new one
+        broker.pid = replacement.pid
+        runner.join(90)
+        assert not runner.is_alive(), "the mission did not finish after the broker came back"
+        assert "error" not in outcome, outcome.get("error")
+        assert fleet.positions == far
+        assert not any(outcome["done"].values())
+        for v in range(N):  # every hop was paid for exactly once
+            assert fleet.distances[v] == pytest.approx(graph.distance(start[v], far[v]))
+    finally:
+        fleet.close()
+
+
+def test_unreachable_broker_is_one_sentence(graph):
+    fleet = make_fleet(graph, 1, connect_timeout=1.0)  # nothing listens on port 1
+    try:
+        with pytest.raises(GuadalError, match=r"cannot reach the MQTT broker at mqtt://127\.0\.0\.1:1 within 1 s"):
+            fleet.reset(auto_positions(graph, N))
+    finally:
+        fleet.close()
+
+
+def test_missing_bridges_are_named(graph):
+    broker = start_broker("mosquitto")
+    fleet = make_fleet(graph, broker.port, connect_timeout=1.0)
+    try:
+        with pytest.raises(GuadalError, match=r"vehicles 0, 1, 2 not online .* is a bridge running for each"):
+            fleet.reset(auto_positions(graph, N))
+    finally:
+        fleet.close()
+        broker.stop()
+
+
+def test_a_vehicle_whose_bridge_stops_is_done_with_a_reason(graph, stack):
+    """Runs last in the module: it stops bridge 2."""
+    start = auto_positions(graph, N)
+    fleet = make_fleet(graph, stack.broker_port)
+    try:
+        fleet.reset(start)
+        bridge = next(p for p in stack.processes if p.name == "bridge-2")
+        bridge.popen.terminate()
+        bridge.popen.wait(10)
+        wait_for(lambda: fleet.vehicles[2].problem, 10, "the fleet did not notice the bridge going offline")
+        target = next(n for n in graph.neighbors(start[0]) if n not in start)
+        other = next(n for n in graph.neighbors(start[2]) if n not in start)
+        reached, done = fleet.move({0: target, 2: other})
+        assert done[2] and reached[2] and not done[0]
+        assert fleet.positions[2] == start[2] and fleet.positions[0] == target
+        assert fleet.problems == ["vehicle 2 went offline (its bridge stopped or lost the broker); it takes no further part in the mission."]
+    finally:
+        fleet.close()
