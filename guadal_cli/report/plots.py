@@ -29,8 +29,8 @@ def save(fig: Figure, out_dir: Path, stem: str) -> list[Path]:
     """Write PNG and SVG; return both paths (PNG first)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / f"{stem}.png", out_dir / f"{stem}.svg"]
-    fig.savefig(paths[0], dpi=110, bbox_inches="tight")
-    fig.savefig(paths[1], bbox_inches="tight")
+    fig.savefig(paths[0], dpi=110)
+    fig.savefig(paths[1])
     return paths
 
 
@@ -89,7 +89,7 @@ def metric_curves(groups: list[Group], metric: str, x_axis: str, out_dir: Path) 
     ax.set_ylabel(metric)
     ax.set_title(f"{metric} against {x_axis} (mean ± std across runs)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize="small")
+    ax.legend(fontsize="small", loc="upper right")
     return save(fig, out_dir, f"metric_{file_stem(metric)}_vs_{x_axis}")
 
 
@@ -139,8 +139,7 @@ def field_panels(run: Run) -> list[tuple[str, str]]:
 
 
 def draw_field(ax, grid: Grid, values: np.ndarray, cmap: str, vmin=None, vmax=None):
-    cm = colormaps[cmap].copy()
-    cm.set_bad(LAND)
+    cm = colormaps[cmap].with_extremes(bad=LAND)
     image = ax.imshow(grid.place(values), cmap=cm, vmin=vmin, vmax=vmax, interpolation="nearest", origin="upper")
     ax.set_xticks([])
     ax.set_yticks([])
@@ -254,7 +253,7 @@ def gps_track(run: Run, out_dir: Path) -> list[Path]:
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize="x-small")
+    ax.legend(fontsize="x-small", loc="upper right")
     label = "" if run.complete else f" [{run.status}]"
     ax.set_title(f"{run.name}: planned path and GPS track{label}")
     return save(fig, out_dir, f"track_{file_stem(run.name)}")
