@@ -27,7 +27,8 @@ def register(app: typer.Typer) -> None:
         fleet: Optional[str] = typer.Option(None, "--fleet", help="Topic prefix shared with the planner (default: guadal)."),
         sensor: Optional[str] = typer.Option(None, "--sensor", help="synthetic:CSV, replay:CSV or serial:/dev/ttyUSB0."),
         baud: Optional[int] = typer.Option(None, "--baud", help="Baud rate of a serial autopilot (default: 115200)."),
-        arm: Optional[bool] = typer.Option(None, "--arm/--no-arm", help="Set GUIDED and arm at start-up."),
+        arm: Optional[bool] = typer.Option(None, "--arm/--no-arm", help="Arm at start-up, retrying until the autopilot agrees."),
+        arm_retry_interval: Optional[float] = typer.Option(None, "--arm-retry-interval", help="Seconds between arming attempts (default: 5)."),
         guided: Optional[bool] = typer.Option(None, "--guided/--no-guided", help="Set GUIDED at start-up."),
         failsafe_timeout: Optional[float] = typer.Option(None, "--failsafe-timeout", help="Seconds of planner silence before HOLD (default: 10)."),
         arrival_radius: Optional[float] = typer.Option(None, "--arrival-radius", help="Metres that count as reached (default: 2)."),
@@ -47,7 +48,7 @@ def register(app: typer.Typer) -> None:
             "sensor": sensor, "baud": baud, "arm": arm, "guided": guided, "failsafe_timeout": failsafe_timeout,
             "arrival_radius": arrival_radius, "telemetry_hz": telemetry_hz, "refine": refine,
             "waypoint_command": waypoint_command, "hold_on_exit": hold_on_exit, "log_level": log_level,
-            "connect_timeout": connect_timeout,
+            "connect_timeout": connect_timeout, "arm_retry_interval": arm_retry_interval,
         }
         try:
             settings = load_config(config, overrides)

@@ -584,7 +584,7 @@ class Bridge:
         self.link.on_event = lambda msg: self.events.put(("mav", msg))
         self.link.start()
         self.request_streams()
-        if self.config.arm or self.config.guided:
+        if self.config.guided:
             self.request_mode(MODE_GUIDED)
         worker = threading.Thread(target=self._sensor_worker, name="sensor", daemon=True)
         if self.sensor is not None:

@@ -27,7 +27,7 @@ class BridgeConfig(BaseModel):
     map: str = Field(description="The guadal map file the planner uses.")
     fleet: str = Field(default="guadal", min_length=1, description="Topic prefix shared with the planner.")
     sensor: str | dict | None = Field(default=None, description="NAME:VALUE or {type: NAME, ...}.")
-    arm: bool = Field(default=False, description="Set GUIDED and arm at start-up (retried until it succeeds).")
+    arm: bool = Field(default=False, description="Arm at start-up (retried until the autopilot agrees).")
     guided: bool = Field(default=False, description="Set GUIDED at start-up.")
     failsafe_timeout: float = Field(default=10.0, gt=0, description="Seconds of planner silence before HOLD.")
     arrival_radius: float = Field(default=2.0, gt=0, description="Metres from the target that count as reached.")

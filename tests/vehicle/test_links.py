@@ -14,15 +14,26 @@ import pytest
 from guadal_cli.maps.format import haversine_m
 from vehicle_support import Probe, Stack
 
+RTL, HOLD = 11, 4  # Rover refuses to arm in RTL unless forced
 
-def test_serial_autopilot_and_serial_probe(broker, lake, tmp_path):
+
+def test_serial_autopilot_that_first_refuses_to_arm_then_drives_and_measures_with_a_serial_probe(broker, lake, tmp_path):
+    """A boat on its real wires: autopilot and probe on serial lines; arming refused, reported, retried."""
     master, slave = os.openpty()
     probe = Probe(master, [b"VALUE 12.5\n"])
     probe.start()
-    s = Stack(broker, lake, tmp_path, home_node=lake[1].node_at(2, 1), serial=True, speedup=20.0,
-              bridge_args=["--sensor", f"serial:{os.ttyname(slave)}"])
+    s = Stack(broker, lake, tmp_path, home_node=lake[1].node_at(2, 1), serial=True, speedup=20.0, wait_armed=False,
+              before_bridge=lambda emulator: emulator.set_mode(RTL),
+              bridge_args=["--sensor", f"serial:{os.ttyname(slave)}", "--arm-retry-interval", "0.3"])
     try:
         assert s.emulator.vehicle["serial"].startswith("/dev/")
+        status = s.planner.wait_status(lambda st: st["arm_error"] and st["counters"]["arm_failed"] >= 2, 10,
+                                       "arming refusals not reported and retried")
+        assert "refused to arm: FAILED" in status["arm_error"] and "Mode not armable" in status["arm_error"]
+        assert status["armed"] is False and status["counters"]["command_failed"] >= 2
+        s.emulator.set_mode(HOLD)  # someone fixes the cause; the next attempt arms
+        s.planner.wait_status(lambda st: st["armed"] and st["arm_error"] is None, 10, "not armed after the fix")
+
         g, p = s.graph, s.planner
         target = g.node_at(4, 3)
         seq = p.goto(target, g)

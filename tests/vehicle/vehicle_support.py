@@ -70,6 +70,12 @@ class Emulator:
                 return msg
         raise AssertionError(f"{what} within {timeout} s")
 
+    def set_mode(self, mode: int) -> None:
+        """Change the boat's mode from outside the bridge (a ground station, an RC switch)."""
+        self.heartbeat(lambda hb: True, 5, "no heartbeat from the emulator")  # learn its UDP address
+        self.stream.mav.command_long_send(1, 1, 176, 0, 1, mode, 0, 0, 0, 0, 0)
+        self.heartbeat(lambda hb: hb.custom_mode == mode, 5, f"the emulator did not enter mode {mode}")
+
     def close(self):
         _stop(self.proc)
         self.stream.close()
@@ -148,7 +154,8 @@ class Stack:
     """Emulator + bridge + planner client for one test, torn down in reverse order."""
 
     def __init__(self, broker, lake, tmp_path: Path, home_node: int, bridge_args=(), serial=False, speedup=40.0,
-                 fleet=None, route=None, start_planner_online=True, telemetry_hz=10):
+                 fleet=None, route=None, start_planner_online=True, telemetry_hz=10, before_bridge=None,
+                 wait_armed=True):
         self.map, self.graph, self.map_path = lake
         self.broker = broker
         self.fleet = fleet or f"t{uuid.uuid4().hex[:8]}"
@@ -158,6 +165,8 @@ class Stack:
         if start_planner_online:
             self.planner.client.publish(messages.topic(self.fleet, None, "status"),
                                         messages.encode("status", state="online"), qos=1, retain=True).wait_for_publish(5)
+        if before_bridge is not None:
+            before_bridge(self.emulator)
         self.extra: list[subprocess.Popen] = []
         if route is not None:  # something between bridge and emulator (a MAVLink router)
             link, router = route(self.emulator, tmp_path)
@@ -170,7 +179,7 @@ class Stack:
                         "--connect-timeout", "15", *bridge_args]
         self._log = open(self.log_path, "w")
         self.bridge = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, text=True)
-        self.planner.wait_status(lambda s: s["state"] == "online" and s.get("armed"), 20,
+        self.planner.wait_status(lambda s: s["state"] == "online" and (s.get("armed") or not wait_armed), 20,
                                  f"bridge not online and armed (log: {self.log()})")
 
     def log(self) -> str:
