@@ -1,0 +1,63 @@
+"""``guadal stack up/down/status`` as a user runs them: real processes, nothing left behind."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from fleet_support import Inbox
+from guadal_cli.app import app
+from guadal_cli.fleet import messages as msg
+from support import LAKE, run_cli
+
+
+def cli(*args):
+    """The CLI in this process (quick); up and down themselves run as separate processes below."""
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_stack_up_then_down_leaves_no_process(tmp_path):
+    state = tmp_path / "stack"
+    up = run_cli("stack", "up", "--map", LAKE, "--vehicles", "2", "--speedup", "20", "--state-dir", state, "--json")
+    assert up.returncode == 0, up.stderr
+    info = json.loads(up.stdout)
+    pids = info["pids"]
+    try:
+        assert len(pids) == 4 and all(alive(p) for p in pids)  # broker, emulator, two bridges
+        assert (state / "stack.json").is_file()
+        # up returned only once every bridge was online: the retained statuses are there already
+        inbox = Inbox(info["broker"]["port"])
+        inbox.subscribe("guadal/vehicle/+/status")
+        inbox.wait(lambda: len({m.topic for m in inbox.messages}) == 2, 5, "the retained statuses are missing")
+        assert {msg.decode(m.payload)["state"] for m in inbox.messages} <= {"online"}
+        inbox.close()
+
+        again = cli("stack", "up", "--map", LAKE, "--vehicles", "2", "--state-dir", state)
+        assert again.exit_code == 2 and "already up" in again.output and again.exception.__class__ is SystemExit
+
+        status = cli("stack", "status", "--state-dir", state, "--json")
+        assert [row["state"] for row in json.loads(status.stdout)] == ["alive"] * 4
+    finally:
+        down = run_cli("stack", "down", "--state-dir", state)
+    assert down.returncode == 0, down.stderr
+    assert not any(alive(p) for p in pids)
+    assert not (state / "stack.json").exists()
+    twice = cli("stack", "down", "--state-dir", state)
+    assert twice.exit_code == 0 and "nothing to stop" in twice.output
+
+
+def test_stack_up_with_a_missing_map_is_one_sentence(tmp_path):
+    result = cli("stack", "up", "--map", tmp_path / "nope.json", "--state-dir", tmp_path)
+    assert result.exit_code == 2 and result.exception.__class__ is SystemExit
+    assert "nope.json' does not exist" in result.output
+    assert not (tmp_path / "stack.json").exists()
