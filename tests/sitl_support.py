@@ -15,6 +15,9 @@ os.environ["MAVLINK20"] = "1"  # before pymavlink.mavutil is imported anywhere
 from pymavlink import mavutil  # noqa: E402
 
 GUADAL = str(Path(sys.executable).with_name("guadal"))
+#: the CLI command, and the light entry point a launcher uses (skips importing the whole CLI)
+SITL_CLI = [GUADAL, "sitl"]
+SITL_MODULE = [sys.executable, "-m", "guadal_cli.sitl"]
 GCS_SYSID = 255
 GCS_COMPID = 190
 #: MAVLINK.md's mask for "go to this lat/lon": position used; velocity, accel, yaw, yaw rate ignored
@@ -22,11 +25,9 @@ POSITION_ONLY = 0x0FF8
 METRES_PER_DEG = 111319.49079327357  # ArduPilot's LOCATION_SCALING_FACTOR × 1e7
 
 
-def start_sitl(*args: str, timeout: float = 30.0) -> tuple[subprocess.Popen, dict]:
+def start_sitl(*args: str, entry=SITL_CLI, timeout: float = 30.0) -> tuple[subprocess.Popen, dict]:
     """Launch the emulator and return it with its parsed ready line."""
-    proc = subprocess.Popen(
-        [GUADAL, "sitl", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
+    proc = subprocess.Popen([*entry, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + timeout
     line = ""
     while not line.endswith("\n"):

@@ -55,10 +55,12 @@ def sitl(
     max_rate: float = typer.Option(20.0, "--max-rate", help="Cap on wall-clock messages per second of each telemetry stream."),
 ) -> None:
     """Run N emulated MAVLink boats; prints one JSON line when every endpoint is listening."""
-    from ..sitl.server import SitlOptions, SitlServer, stats
-
+    # a launcher may signal us while we start: remember it, and stop quietly once started
+    early_stop: list[int] = []
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda signum, _frame: early_stop.append(signum))
     try:
-        options = SitlOptions(
+        fields = dict(
             vehicles=vehicles,
             home=_latlon(home, "--home"),
             homes=[_latlon(part.strip(), "--homes") for part in homes.split(";") if part.strip()] if homes else None,
@@ -76,12 +78,16 @@ def sitl(
         )
         if gps_noise < 0:
             raise GuadalError(f"--gps-noise must be zero or positive (got {gps_noise}).")
-        server = SitlServer(options)
+        from ..sitl.server import SitlOptions, SitlServer, stats  # after the cheap checks: pymavlink is slow to import
+
+        server = SitlServer(SitlOptions(**fields))
         ready = server.open()
     except GuadalError as exc:
         raise fail(exc)
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: server.request_stop())
+    if early_stop:
+        server.request_stop()
     sys.stdout.write(json.dumps(ready) + "\n")
     sys.stdout.flush()
     try:

@@ -114,6 +114,23 @@ def test_heartbeat_reports_mode_flags_and_status(gcs):
     assert hb.base_mode == CUSTOM | GUIDED_FLAG | ARMED_FLAG and conn.motors_armed()
 
 
+def test_navigation_messages_only_in_autopilot_modes(gcs):
+    conn, sysid = gcs(2)
+    barrier(conn, sysid)
+    seen = []
+    while seen.count("HEARTBEAT") < 5:  # MANUAL: no controller output, no target
+        msg = wait_for(conn, ["HEARTBEAT", "NAV_CONTROLLER_OUTPUT", "POSITION_TARGET_GLOBAL_INT"])
+        seen.append(msg.get_type())
+    assert set(seen) == {"HEARTBEAT"}
+    assert set_mode(conn, sysid, GUIDED) == ACCEPTED
+    here, _ = _position(conn, sysid)
+    target = offset((here[0] / 1e7, here[1] / 1e7), 30.0)
+    _send_target(conn, sysid, target)
+    barrier(conn, sysid)
+    assert 28 <= wait_for(conn, "NAV_CONTROLLER_OUTPUT").wp_dist <= 32
+    assert _echo(conn) == target
+
+
 def test_mode_change_acknowledgements(gcs):
     conn, sysid = gcs(1)
     assert set_mode(conn, sysid, LOITER) == ACCEPTED
@@ -299,6 +316,12 @@ def test_change_speed_only_while_driving(gcs):
     assert change_speed(0.2) == ACCEPTED
     wait_for(conn, "VFR_HUD", lambda m: abs(m.groundspeed - 0.2) < 0.01)
     assert all(wait_for(conn, "VFR_HUD").groundspeed <= 0.21 for _ in range(5))
+    assert set_mode(conn, sysid, HOLD) == ACCEPTED  # HOLD stops the boat
+    wait_for(conn, "VFR_HUD", lambda m: m.groundspeed == 0)
+    assert set_mode(conn, sysid, GUIDED) == ACCEPTED  # entering GUIDED restores WP_SPEED
+    here, _ = _position(conn, sysid)
+    _send_target(conn, sysid, offset((here[0] / 1e7, here[1] / 1e7), -40.0))
+    wait_for(conn, "VFR_HUD", lambda m: m.groundspeed > 0.45)
     assert set_mode(conn, sysid, LOITER) == ACCEPTED
     assert change_speed(0.3) == FAILED
     assert set_mode(conn, sysid, RTL) == ACCEPTED

@@ -1,4 +1,5 @@
-"""`guadal sitl` as a process: bad options, busy ports, water current and GPS noise, signals."""
+"""`guadal sitl` as a process: bad options, busy ports, water current and GPS noise, signals
+(the last through ``python -m guadal_cli.sitl``, the light entry point a launcher uses)."""
 
 from __future__ import annotations
 
@@ -8,43 +9,72 @@ import socket
 import subprocess
 import statistics
 
-from sitl_support import GUADAL, METRES_PER_DEG, connect, start_sitl, stop_sitl, wait_for
+import pytest
+from sitl_support import METRES_PER_DEG, SITL_MODULE, connect, start_sitl, stop_sitl, wait_for
 
 
-def _run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([GUADAL, "sitl", *args], capture_output=True, text=True, timeout=60)
+BAD_RUNS = {
+    "home": ["--home", "north-of-here", "--base-port", "0"],
+    "homes": ["--vehicles", "3", "--homes", "10,20;10.001,20", "--base-port", "0"],
+    "speedup": ["--speedup", "-5", "--base-port", "0"],
+}
 
 
-def test_bad_options_get_one_sentence_and_exit_2():
-    result = _run("--home", "north-of-here", "--base-port", "0")
-    assert result.returncode == 2
-    assert "--home" in result.stderr and "LAT,LON" in result.stderr
-    assert "Traceback" not in result.stderr and result.stdout == ""
-
-
-def test_busy_port_is_reported_not_raised():
+@pytest.fixture(scope="module")
+def bad_runs():
+    """Every refused command line plus one on a port already taken, started together through the
+    light entry point (same option handling as ``guadal sitl``, whose start-up imports the whole
+    CLI; the fleet in test_sitl_emulator.py goes through ``guadal sitl`` itself)."""
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen(1)
         port = busy.getsockname()[1]
-        result = _run("--base-port", str(port))
-    assert result.returncode == 2
-    assert f"127.0.0.1:{port}" in result.stderr and "--base-port" in result.stderr
-    assert "Traceback" not in result.stderr
+        runs = {name: [*SITL_MODULE, *args] for name, args in BAD_RUNS.items()}
+        runs["busy"] = [*SITL_MODULE, "--base-port", str(port)]
+        procs = {name: subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for name, cmd in runs.items()}
+        results = {name: (p.wait(timeout=60), *p.communicate()) for name, p in procs.items()}
+    results["busy_port"] = port
+    return results
+
+
+def _refused(result) -> str:
+    code, out, err = result
+    assert code == 2 and out == "" and "Traceback" not in err, (code, out, err)
+    return err
+
+
+def test_bad_home_is_one_sentence_and_exit_2(bad_runs):
+    err = _refused(bad_runs["home"])
+    assert "--home" in err and "LAT,LON" in err
+
+
+def test_homes_must_match_the_number_of_vehicles(bad_runs):
+    assert "one LAT,LON per vehicle" in _refused(bad_runs["homes"])
+
+
+def test_speedup_must_be_positive(bad_runs):
+    assert "--speedup must be positive" in _refused(bad_runs["speedup"])
+
+
+def test_busy_port_is_reported_not_raised(bad_runs):
+    err = _refused(bad_runs["busy"])
+    assert f"127.0.0.1:{bad_runs['busy_port']}" in err and "--base-port" in err
 
 
 def test_current_drifts_the_boat_noise_scatters_reports_and_sigint_stops_cleanly():
     proc, info = start_sitl(
         "--base-port", "0", "--speedup", "100", "--current", "0.2,0", "--gps-noise", "0.5", "--seed", "7",
-        "--home", "10.0,20.0",
+        "--vehicles", "2", "--homes", "10.0,20.0; 10.001,20.0", entry=SITL_MODULE,
     )
     try:
-        assert info["vehicles"][0]["home"] == [10.0, 20.0]
+        assert [v["home"] for v in info["vehicles"]] == [[10.0, 20.0], [10.001, 20.0]]
         conn = connect(f"tcp:127.0.0.1:{info['vehicles'][0]['tcp']}")
+        battery_before = wait_for(conn, "BATTERY_STATUS")
         first = wait_for(conn, "GLOBAL_POSITION_INT")
         samples = [first]
         while samples[-1].time_boot_ms < first.time_boot_ms + 60_000:
             samples.append(wait_for(conn, "GLOBAL_POSITION_INT"))
+        battery_after = wait_for(conn, "BATTERY_STATUS")
         conn.close()
     finally:
         code, err = stop_sitl(proc, signal.SIGINT)
@@ -57,3 +87,6 @@ def test_current_drifts_the_boat_noise_scatters_reports_and_sigint_stops_cleanly
     residual = [e - 0.2 * (m.time_boot_ms - first.time_boot_ms) / 1000 - east[0] for e, m in zip(east, samples)]
     assert 0.2 < statistics.pstdev(north) < 1.0 and statistics.pstdev(residual) > 0.2
     assert all(m.vy == 20 and m.vx == 0 for m in samples)  # reported velocity is the drift, cm/s
+    # the electronics draw the battery down even at rest, slowly
+    assert battery_after.current_consumed > battery_before.current_consumed
+    assert battery_after.battery_remaining >= 99
