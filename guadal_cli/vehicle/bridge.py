@@ -410,6 +410,8 @@ class Bridge:
         if kind == "COMMAND_ACK":
             if msg.result in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
                 return
+            if msg.command not in self.link.sent_commands:
+                return  # another ground station's command, seen through a shared link
             name = COMMAND_NAMES.get(msg.command, str(msg.command))
             result = RESULT_NAMES.get(msg.result, str(msg.result))
             self.count("command_failed")

@@ -86,6 +86,7 @@ class AutopilotLink:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._start = time.monotonic()
+        self.sent_commands: set[int] = set()  # command ids this bridge has sent (their acks are ours)
 
     # --- connection ----------------------------------------------------------------------
     @staticmethod
@@ -146,9 +147,17 @@ class AutopilotLink:
                 continue
             if kind == "HEARTBEAT" and not self._is_vehicle_heartbeat(msg):
                 continue
+            if kind in ("COMMAND_ACK", "MISSION_ACK") and not self._addressed_to_us(msg):
+                continue  # behind a router, the answers to a ground station's commands pass by too
             self._update(msg)
             if kind in EVENT_TYPES:
                 self.on_event(msg)
+
+    def _addressed_to_us(self, msg) -> bool:
+        system = getattr(msg, "target_system", 0) or 0
+        component = getattr(msg, "target_component", 0) or 0
+        me = self.master.mav
+        return system in (0, me.srcSystem) and component in (0, me.srcComponent)
 
     def _update(self, msg) -> None:
         kind = msg.get_type()
@@ -188,6 +197,7 @@ class AutopilotLink:
 
     def command_long(self, command: int, *params: float) -> None:
         p = list(params) + [0.0] * (7 - len(params))
+        self.sent_commands.add(int(command))
         with self._lock:
             self.master.mav.command_long_send(self.target_system, self.target_component, command, 0, *p)
 

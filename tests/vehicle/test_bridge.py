@@ -16,15 +16,25 @@ import textwrap
 import numpy as np
 import pytest
 
-from vehicle_support import Stack
 from guadal_cli.fleet import messages
+from guadal_cli.fleet.broker import start_broker
 from guadal_cli.maps.format import haversine_m
+from vehicle_support import Planner, Stack
 
 HOLD, GUIDED = 4, 15
 
 
 @pytest.fixture(scope="module")
-def shared(broker, lake, tmp_path_factory):
+def own_broker():
+    """This module's broker: one test restarts it."""
+    holder = {"broker": start_broker("mosquitto")}
+    yield holder
+    holder["broker"].stop()
+
+
+@pytest.fixture(scope="module")
+def shared(own_broker, lake, tmp_path_factory):
+    broker = own_broker["broker"]
     m, g, _ = lake
     truth = tmp_path_factory.mktemp("truth") / "truth.csv"
     # a distinct value per cell: 10*row + col
@@ -160,10 +170,10 @@ def test_measure_reads_the_synthetic_truth_where_the_boat_is(shared, planner):
     assert sample["t"] > 0
 
 
-def test_status_is_retained_with_counters(shared, broker):
+def test_status_is_retained_with_counters(shared, own_broker):
     from fleet_support import Inbox
 
-    late = Inbox(broker.port)  # a planner that connects later still learns the vehicle's state
+    late = Inbox(own_broker["broker"].port)  # a planner that connects later still learns the vehicle's state
     try:
         late.subscribe(f"{shared.fleet}/vehicle/0/status")
         late.wait(lambda: late.messages, 5, "no retained status")
@@ -172,6 +182,35 @@ def test_status_is_retained_with_counters(shared, broker):
         assert set(status["counters"]) >= {"bad_payload", "stale_seq", "duplicate_seq", "command_failed", "failsafe"}
     finally:
         late.close()
+
+
+def test_hold_stops_the_boat_and_the_next_goto_resumes(shared, planner):
+    g = shared.graph
+    far = g.node_at(5, 7)
+    seq = planner.goto(far, g)
+    planner.wait_ack(seq, "accepted", 5)
+    hold = planner.send("hold")
+    planner.wait_ack(hold, "accepted", 5)
+    assert planner.wait_ack(seq, "failed", 5)["reason"].startswith("interrupted")
+    shared.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "no HOLD after the hold command")
+    planner.wait_status(lambda st: st["state"] == "hold", 5, "status does not say hold")
+    seq = planner.goto(g.node_at(3, 2), g)
+    planner.wait_ack(seq, "reached", 20)
+    assert planner.status()["state"] == "online"
+
+
+def test_bridge_comes_back_after_a_broker_restart(shared, own_broker, planner):
+    old = own_broker["broker"]
+    old.kill()
+    own_broker["broker"] = start_broker("mosquitto", port=old.port)
+    # a new broker knows nothing: the bridge must subscribe again and re-publish its retained status
+    planner.close()
+    shared.planner = fresh = Planner(own_broker["broker"], shared.fleet)
+    fresh.wait_status(lambda st: st["state"] == "online", 15, "the bridge did not re-publish its status")
+    fresh.seq = fresh.status()["last_seq"]
+    g = shared.graph
+    seq = fresh.goto(g.node_at(2, 2), g)
+    fresh.wait_ack(seq, "reached", 20)
 
 
 def test_sigterm_stops_cleanly_with_offline_status_and_hold(shared, planner):
