@@ -63,10 +63,8 @@ def register(app: typer.Typer) -> None:
         elif as_markdown:
             sys.stdout.write(result.markdown())
         else:
-            _show(f"{len(found)} runs (final values)", result.run_columns,
-                  [[tables.cell_text(v) for v in row] for row in result.run_rows], drop_constant=("level", "vehicles"))
-            gcols, grows = tables.folded(result.group_columns, result.group_rows)
-            _show(f"{len(result.groups)} groups by {', '.join(options.group_by)} (mean ± std over complete runs)", gcols, grows)
+            for title, columns, rows in result.display_tables():
+                _show(title, columns, rows, drop_constant=("level", "vehicles"))
             if output is not None:
                 console.print(f"report: {output / 'report.html'}")
 
@@ -88,12 +86,23 @@ def _show(title: str, columns: list[str], rows: list[list[str]], drop_constant=(
             notes.append(f"{name} {rows[0][columns.index(name)]}")
     table = Table(title=title + (f" — {', '.join(notes)}" if notes else ""), title_justify="left")
     for i in keep:
-        first = i == 0
+        cells = [r[i] for r in rows if r[i] != ""]
+        numeric = bool(cells) and all(_numeric(c) for c in cells)
         header = SHORT.get(columns[i], columns[i])
-        table.add_column(header, no_wrap=not first, overflow="fold" if first else "ellipsis", min_width=min(len(header), 24) if first else None,
-                         justify="left" if first or columns[i] in ("status", "algorithm") else "right")
+        widest = max([len(header), *(len(c) for c in cells)])
+        table.add_column(header, no_wrap=True, overflow="ellipsis", justify="right" if numeric else "left",
+                         min_width=min(widest, 30) if i == 0 else None)
     status = columns.index("status") if "status" in columns else None
     for row in rows:
         style = None if status is None or row[status] == "complete" else "yellow"
         table.add_row(*(row[i] for i in keep), style=style)
     console.print(table)
+
+
+def _numeric(text: str) -> bool:
+    head = text.split(" ± ")[0]
+    try:
+        float(head)
+    except ValueError:
+        return False
+    return True

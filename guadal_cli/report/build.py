@@ -55,11 +55,26 @@ class Report:
             "files": [str(p) for p in self.files],
         }
 
-    def markdown(self) -> str:
-        cols, rows = self.run_columns, [[tables.cell_text(v) for v in r] for r in self.run_rows]
+    def display_tables(self) -> list[tuple[str, list[str], list[list[str]]]]:
+        """(title, columns, text rows) for people: groups then runs, one table per environment."""
+        split = len({r.environment for r in self.runs}) > 1
+        out = []
         gcols, grows = tables.folded(self.group_columns, self.group_rows)
+        g_envs = [g.runs[0].environment for g in self.groups]
+        for env, cols, rows in tables.by_environment(gcols, grows, g_envs):
+            where = f" in environment {env}" if split else ""
+            n = len(rows)
+            out.append((f"{n} group{'s' if n != 1 else ''}{where} by {', '.join(self.group_by)} (mean ± std over complete runs)", cols, rows))
+        text = [[tables.cell_text(v) for v in r] for r in self.run_rows]
+        for env, cols, rows in tables.by_environment(self.run_columns, text, [r.environment for r in self.runs]):
+            where = f" in environment {env}" if split else ""
+            n = len(rows)
+            out.append((f"{n} run{'s' if n != 1 else ''}{where} (final values)", cols, rows))
+        return out
+
+    def markdown(self) -> str:
         notes = "".join(f"> warning: {w}\n\n" for w in self.warnings)
-        return f"{notes}## Runs\n\n{tables.to_markdown(cols, rows)}\n## Groups\n\n{tables.to_markdown(gcols, grows)}"
+        return notes + "\n".join(f"## {title}\n\n{tables.to_markdown(cols, rows)}" for title, cols, rows in self.display_tables())
 
 
 def check_options(options: Options) -> None:
@@ -68,8 +83,6 @@ def check_options(options: Options) -> None:
         raise GuadalError(f"--x must be one of {', '.join(plots.X_AXES)} (got '{options.x_axis}').")
     if options.animate is not None and options.animate not in FORMATS:
         raise GuadalError(f"--animate must be one of {', '.join(FORMATS)} or none (got '{options.animate}').")
-    if options.animate == "mp4" and not ffmpeg_available():
-        raise GuadalError("--animate mp4 needs an ffmpeg program on the PATH, and none was found; use --animate gif.")
     if options.max_frames < 2:
         raise GuadalError(f"--frames must be at least 2 (got {options.max_frames}).")
 
@@ -77,7 +90,16 @@ def check_options(options: Options) -> None:
 def build(runs: list[Run], options: Options) -> Report:
     """The tables and warnings of a report (reads metrics.csv, and trajectories of GPS runs)."""
     check_options(options)
-    groups = group_runs(runs, options.group_by)
+    warnings = []
+    environments = sorted({r.environment for r in runs})
+    group_by = list(options.group_by)
+    if len(environments) > 1 and "environment.type" not in group_by:
+        group_by.insert(0, "environment.type")
+        warnings.append(
+            f"runs use {len(environments)} environments ({', '.join(environments)}), whose metrics differ; "
+            "groups are split by environment.type as well."
+        )
+    groups = group_runs(runs, group_by)
     names = tables.metric_names(runs)
     run_columns, run_rows = tables.run_table(runs, names)
     gps = [r for r in runs if r.has_gps]
@@ -88,9 +110,9 @@ def build(runs: list[Run], options: Options) -> Report:
         for run, row in zip(runs, run_rows):
             summary = summaries.get(id(run), {})
             row += [summary.get(c, float("nan")) for c in extra]
-    group_columns, group_rows = tables.group_table(groups, options.group_by, names)
-    warnings = [w for w in (map_warning(runs), status_warning(runs)) if w]
-    return Report(runs, groups, list(options.group_by), run_columns, run_rows, group_columns, group_rows, warnings)
+    group_columns, group_rows = tables.group_table(groups, group_by, names)
+    warnings += [w for w in (map_warning(runs), status_warning(runs)) if w]
+    return Report(runs, groups, group_by, run_columns, run_rows, group_columns, group_rows, warnings)
 
 
 def curve_metrics(runs: list[Run], wanted: list[str] | None) -> list[str]:
@@ -109,6 +131,8 @@ def write(report: Report, out_dir: Path, options: Options, on_file: Callable[[st
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise GuadalError(f"--output '{out_dir}' is a file; give a folder for the report.")
+    if options.animate == "mp4" and not ffmpeg_available():
+        raise GuadalError("--animate mp4 needs an ffmpeg program on the PATH, and none was found; use --animate gif.")
     metrics = curve_metrics(report.runs, options.metrics)
     extra_warnings: list[str] = []
     files = report.files
@@ -155,15 +179,12 @@ def write(report: Report, out_dir: Path, options: Options, on_file: Callable[[st
     (tdir / "report.json").write_text(json.dumps(report.as_json(), indent=2) + "\n")
     files.append(tdir / "report.json")
 
-    gcols, grows = tables.folded(report.group_columns, report.group_rows)
-    runs_html = tables.to_html(report.run_columns, [[tables.cell_text(v) for v in r] for r in report.run_rows])
     pngs = lambda items: "".join(html_page.figure(p, c) for p, c in items if p.suffix != ".svg")  # noqa: E731
     page = html_page.page(
         f"guadal report: {len(report.runs)} runs in {len(report.groups)} groups",
         report.warnings,
         [
-            (f"Groups by {', '.join(report.group_by)} (mean ± std across runs)", tables.to_html(gcols, grows)),
-            ("Runs (final values)", runs_html),
+            *((title, tables.to_html(cols, rows)) for title, cols, rows in report.display_tables()),
             ("Metrics during the mission", pngs(curve_figs)),
             ("Final maps", pngs(map_figs)),
             ("Planned path and GPS track", pngs(track_figs)),

@@ -239,7 +239,12 @@ def gps_track(run: Run, out_dir: Path) -> list[Path]:
     ax = fig.add_subplot()
     if grid is not None and grid.projection is not None:
         map_ = load_map(run.map_path)
-        ax.contourf(map_.x, map_.y, map_.mask.astype(float), levels=[-0.5, 0.5], colors=[LAND])
+        land = np.ma.masked_where(map_.mask, np.ones(map_.shape))
+        ax.pcolormesh(map_.x, map_.y, land, shading="nearest", cmap=colormaps["Greys"].with_extremes(under=LAND, over=LAND), vmin=2, vmax=3)
+        water_x, water_y = map_.x[map_.mask], map_.y[map_.mask]
+        pad = map_.cell_size_m * 2
+        ax.set_xlim(water_x.min() - pad, water_x.max() + pad)
+        ax.set_ylim(water_y.min() - pad, water_y.max() + pad)
     for v, rows in plan.items():
         colour = vehicle_colour(v)
         px, py = proj.to_xy(rows["lat"], rows["lon"])

@@ -101,6 +101,10 @@ class Run:
         return str(mission_field(self.mission, "algorithm.type") or "?")
 
     @property
+    def environment(self) -> str:
+        return str(mission_field(self.mission, "environment.type") or "?")
+
+    @property
     def level(self) -> str:
         return str(self.manifest.get("level", mission_field(self.mission, "backend.level") or "?"))
 

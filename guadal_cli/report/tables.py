@@ -43,7 +43,8 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
     arr = np.asarray([v for v in values if not math.isnan(v)], dtype=float)
     if arr.size == 0:
         return math.nan, math.nan
-    return float(arr.mean()), float(arr.std(ddof=1)) if arr.size > 1 else 0.0
+    # one run has no spread to speak of: its std is left empty rather than written as 0
+    return float(arr.mean()), float(arr.std(ddof=1)) if arr.size > 1 else math.nan
 
 
 def group_table(groups: list[Group], group_fields: list[str], metrics: list[str]) -> tuple[list[str], list[list]]:
@@ -96,7 +97,10 @@ def folded(columns: list[str], rows: list[list]) -> tuple[list[str], list[list[s
         for p in picks:
             if isinstance(p, tuple):
                 mean, std = row[p[0]], row[p[1]]
-                cells.append("" if math.isnan(mean) else f"{cell_text(mean)} ± {cell_text(std)}")
+                if math.isnan(mean):
+                    cells.append("")
+                else:
+                    cells.append(cell_text(mean) if math.isnan(std) else f"{cell_text(mean)} ± {cell_text(std)}")
             else:
                 cells.append(cell_text(row[p]))
         out_rows.append(cells)
@@ -139,3 +143,19 @@ def to_html(columns: list[str], rows: list[list[str]], status_column: str | None
         cls = ' class="incomplete"' if odd else ""
         body.append(f"<tr{cls}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>")
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def by_environment(columns: list[str], rows: list[list[str]], environments: list[str]) -> list[tuple[str, list[str], list[list[str]]]]:
+    """Rendered rows split by environment, each part without the columns it leaves empty.
+
+    Environments record different task metrics, so one wide table of mostly empty cells
+    becomes one readable table per environment.
+    """
+    parts: dict[str, list[list[str]]] = {}
+    for env, row in zip(environments, rows):
+        parts.setdefault(env, []).append(row)
+    out = []
+    for env, part in parts.items():
+        keep = [i for i in range(len(columns)) if i == 0 or any(r[i] != "" for r in part)]
+        out.append((env, [columns[i] for i in keep], [[r[i] for i in keep] for r in part]))
+    return out
