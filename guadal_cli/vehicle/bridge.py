@@ -387,7 +387,11 @@ class Bridge:
             log.warning("ignored planner status: %s", exc)
             return
         if data["state"] == "offline":
-            if self.last_contact is not None:
+            if self.state == "hold":
+                # a planner that ends cleanly holds every boat, then says goodbye: not a comms loss
+                log.info("the planner went offline; vehicle already in HOLD")
+                self.last_contact = None
+            elif self.last_contact is not None:
                 self.trigger_failsafe("the planner went offline")
         else:
             self.last_contact = time.monotonic()

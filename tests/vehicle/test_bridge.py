@@ -16,6 +16,7 @@ import textwrap
 import numpy as np
 import pytest
 
+from fleet_support import wait_for
 from guadal_cli.fleet import messages
 from guadal_cli.fleet.broker import start_broker
 from guadal_cli.maps.format import haversine_m
@@ -194,6 +195,12 @@ def test_hold_stops_the_boat_and_the_next_goto_resumes(shared, planner):
     assert planner.wait_ack(seq, "failed", 5)["reason"].startswith("interrupted")
     shared.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "no HOLD after the hold command")
     planner.wait_status(lambda st: st["state"] == "hold", 5, "status does not say hold")
+    # a planner that ends cleanly (hold, then offline) is not a comms loss: no failsafe
+    planner_status = messages.topic(shared.fleet, None, "status")
+    planner.client.publish(planner_status, messages.encode("status", state="offline"), qos=1, retain=True).wait_for_publish(5)
+    wait_for(lambda: "vehicle already in HOLD" in shared.log(), 5, "planner offline not noticed")
+    assert planner.status()["state"] == "hold"
+    planner.client.publish(planner_status, messages.encode("status", state="online"), qos=1, retain=True).wait_for_publish(5)
     seq = planner.goto(g.node_at(3, 2), g)
     planner.wait_ack(seq, "reached", 20)
     assert planner.status()["state"] == "online"
