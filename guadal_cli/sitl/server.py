@@ -13,6 +13,7 @@ import heapq
 import itertools
 import selectors
 import socket
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -100,6 +101,7 @@ class SitlServer:
         self._next_sim: dict[tuple[int, int], float] = {}
         self._counter = itertools.count()
         self._stopping = False
+        self._reported_failures: set[int] = set()
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
@@ -216,11 +218,20 @@ class SitlServer:
                 continue
             if self.links[index].has_peers:
                 boat.advance(sim_now)
-                send_once(boat, msg_id)
+                self._send_safely(boat, msg_id)
             due = self._next_sim[key] + interval
             if due <= sim_now:  # fell behind (the wall-rate cap, or a slow loop): resynchronise
                 due = sim_now + interval
             self._schedule(index, msg_id, due, now + min_gap)
+
+    def _send_safely(self, boat: EmulatedBoat, msg_id: int) -> None:
+        """A telemetry bug must not stop the fleet: report it once per message and carry on."""
+        try:
+            send_once(boat, msg_id)
+        except Exception as exc:  # noqa: BLE001 - the loop must keep serving the other boats
+            if msg_id not in self._reported_failures:
+                self._reported_failures.add(msg_id)
+                sys.stderr.write(f"sitl: vehicle {boat.sysid} could not send message {msg_id}: {exc!r}\n")
 
     # ---------------------------------------------------------------- loop
     def run(self) -> None:

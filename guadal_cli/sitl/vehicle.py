@@ -229,12 +229,11 @@ class EmulatedBoat:
         return mavlink.MAV_RESULT_UNSUPPORTED
 
     def _change_speed(self, speed: float) -> int:
-        """Rover takes a new speed only while driving somewhere (guided target or RTL)."""
+        """Rover takes a new speed only while GUIDED drives to a target, or in RTL/SMART_RTL
+        (even after arriving home): loitering and stopped submodes have no speed to change."""
         goal = self.goal
-        driving = goal is not None and (
-            (self.mode == GUIDED and goal.kind == "wp") or (self.mode in (RTL, SMART_RTL) and goal.kind == "rtl")
-        )
-        if not driving or speed <= 0:
+        driving = self.mode in (RTL, SMART_RTL) or (self.mode == GUIDED and goal is not None and goal.kind == "wp")
+        if not driving or not math.isfinite(speed) or speed <= 0:
             return mavlink.MAV_RESULT_FAILED
         self.nav_speed = speed
         return mavlink.MAV_RESULT_ACCEPTED
@@ -290,7 +289,7 @@ class EmulatedBoat:
 
     def _command(self, msg, command: int, p: tuple[float, float, float, float]) -> int | None:
         if command == mavlink.MAV_CMD_DO_SET_MODE:
-            return self._set_mode_common(int(p[0]), int(p[1]))
+            return self._set_mode_common(_as_int(p[0]), _as_int(p[1]))
         if command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             return self._arm_disarm(p[0], p[1])
         if command == mavlink.MAV_CMD_DO_CHANGE_SPEED:
@@ -301,20 +300,22 @@ class EmulatedBoat:
             return mavlink.MAV_RESULT_ACCEPTED if self.set_mode(AUTO) else mavlink.MAV_RESULT_FAILED
         if command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             interval_us = p[1]
+            if not math.isfinite(interval_us):
+                return mavlink.MAV_RESULT_DENIED
             if interval_us < 0:
                 wanted = None
             elif interval_us == 0:
                 wanted = "default"
             else:
                 wanted = interval_us / 1e6
-            ok = self.streams.set(int(p[0]), wanted)
+            ok = self.streams.set(_as_int(p[0]), wanted)
             if not ok:
-                self.statustext(f"No ap_message for mavlink id ({int(p[0])})")
+                self.statustext(f"No ap_message for mavlink id ({_as_int(p[0])})")
             return mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_DENIED
         if command == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
-            return self._send_message_interval(int(p[0]))
+            return self._send_message_interval(_as_int(p[0]))
         if command == mavlink.MAV_CMD_REQUEST_MESSAGE:
-            return mavlink.MAV_RESULT_ACCEPTED if send_once(self, int(p[0])) else mavlink.MAV_RESULT_DENIED
+            return mavlink.MAV_RESULT_ACCEPTED if send_once(self, _as_int(p[0])) else mavlink.MAV_RESULT_DENIED
         if command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             send_once(self, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
             return mavlink.MAV_RESULT_ACCEPTED
@@ -329,7 +330,7 @@ class EmulatedBoat:
 
     def _reposition(self, msg) -> int:
         """GCS_MAVLINK_Rover::handle_command_int_do_reposition, step for step."""
-        change_mode = int(msg.param2) & mavlink.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE
+        change_mode = _as_int(msg.param2) & mavlink.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE
         if self.mode != GUIDED and not change_mode:
             return mavlink.MAV_RESULT_DENIED
         lat, lon = msg.x / 1e7, msg.y / 1e7
@@ -354,6 +355,8 @@ class EmulatedBoat:
             return
         if not mask & POS_IGNORE:
             self.set_guided_target(lat, lon)
+            return
+        if not all(math.isfinite(v) for v in (msg.vx, msg.vy, msg.yaw)):
             return
         if not mask & VEL_IGNORE and mask & YAW_RATE_IGNORE:
             speed = min(math.hypot(msg.vx, msg.vy), self._default_speed())
@@ -431,6 +434,11 @@ class EmulatedBoat:
         p = self.params[name]
         p.value = p.coerce(msg.param_value)
         self._send_param(name)
+
+
+def _as_int(value: float) -> int:
+    """A float command parameter as an integer; NaN or infinity become -1 (never valid)."""
+    return int(value) if math.isfinite(value) else -1
 
 
 def _param_name(raw) -> str:

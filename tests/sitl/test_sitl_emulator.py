@@ -412,6 +412,13 @@ def test_garbage_is_counted_and_a_dropped_client_is_replaced(gcs, fleet):
     raw.sendall(b"\x00garbage\xfd\xff\xff" + bytes(range(256)) + bytes(corrupt) + b"\xfe\x05junk")
     raw.close()  # and vanish mid-conversation
     wait_for(conn, "SYS_STATUS", lambda m: m.errors_comm > errors_before)
+    # well-formed messages with nonsense values are refused, not fatal
+    assert command_long(conn, sysid, 176, math.nan, math.nan) in (DENIED, FAILED)
+    assert command_long(conn, sysid, 511, 33, math.inf) == DENIED
+    assert command_long(conn, sysid, 178, 1, math.nan) == FAILED
+    assert set_mode(conn, sysid, GUIDED) == ACCEPTED
+    conn.mav.set_position_target_global_int_send(0, sysid, 1, 6, 0x0DC7, 0, 0, 0, math.nan, math.nan, 0, 0, 0, 0, 0, 0)
+    wait_for(conn, "GLOBAL_POSITION_INT")
     barrier(conn, sysid)  # the original client is still served
     again = connect(f"tcp:127.0.0.1:{port}")
     again.mav.param_request_read_send(sysid, 1, b"WP_SPEED", -1)
