@@ -40,6 +40,7 @@ MODE_RETRY_S = 1.5  # re-ask for a mode that the heartbeat does not show yet
 MODE_GIVE_UP = 8  # requests before a mode change is reported as failed
 TARGET_RESEND_S = 2.0  # guided targets are not acknowledged: repeat them (idempotent)
 STATUS_REFRESH_S = 15.0
+LINK_LOST_S = 3.0  # autopilot heartbeats are 1 Hz: three missed ones mean the link is down
 ARRIVAL_GATE_FACTOR = 4.0  # MISSION_ITEM_REACHED counts only this close (× radius) to the target
 
 COUNTERS = (
@@ -110,7 +111,7 @@ class Bridge:
         self._status_sent: dict | None = None
         self._status_at = 0.0
         self._sensor_jobs: queue.Queue = queue.Queue()
-        self._last_heartbeat_seen = 0.0
+        self.link_lost = False
         self.topic_command = messages.topic(self.fleet, self.vid, "command")
         self.topic_planner = messages.topic(self.fleet, None, "status")
         self.mqtt = self._make_client()
@@ -180,6 +181,7 @@ class Bridge:
             "vehicle": self.vid,
             "mode": s.mode,
             "armed": s.armed,
+            "autopilot_link": "lost" if self.link_lost else "ok",
             "failsafe_reason": self.failsafe_reason,
             "arm_error": self.arm_error,
             "autopilot_text": self.autopilot_text,
@@ -291,6 +293,8 @@ class Bridge:
         if self.state != "online":
             log.info("resuming from %s", self.state)
         self.state, self.failsafe_reason = "online", None
+        if not s.armed and self.config.arm:
+            self.want_armed, self.arm_requested_at = True, -1e9
         self.request_mode(MODE_GUIDED)
         self.drive()
 
@@ -373,10 +377,16 @@ class Bridge:
     def trigger_failsafe(self, reason: str) -> None:
         if self.state == "failsafe":
             return
-        log.warning("FAILSAFE: %s; vehicle to HOLD", reason)
         self.count("failsafe")
         self.failsafe_reason = reason
-        self.enter_hold("failsafe")
+        mode = self.link.snapshot().custom_mode
+        if mode in (MODE_GUIDED, MODE_HOLD) or (self.goal is not None and self.goal.active):
+            log.warning("FAILSAFE: %s; vehicle to HOLD", reason)
+            self.enter_hold("failsafe")
+        else:
+            # a pilot (MANUAL, ...) or another autopilot mode has the boat: not ours to stop
+            log.warning("FAILSAFE: %s; vehicle left in %s, which the bridge does not command", reason, mode_name(mode))
+            self.state = "failsafe"
         self.publish_status(force=True)
 
     def handle_planner_status(self, payload: bytes) -> None:
@@ -402,6 +412,9 @@ class Bridge:
             if self.arm_error:
                 log.info("vehicle armed")
             self.arm_error = None
+            # armed once is enough: whoever disarms later (a pilot, for safety) is not overruled;
+            # a new goto asks again
+            self.want_armed = False
             return
         if not self.want_armed or now - self.arm_requested_at < self.config.arm_retry_interval:
             return
@@ -550,12 +563,13 @@ class Bridge:
         if now >= self._next_beat:
             self.link.send_heartbeat()
             self._next_beat = now + 1.0
-            if s.last_heartbeat and now - s.last_heartbeat > 3.0:
-                log.warning("no heartbeat from the autopilot for %.0f s", now - s.last_heartbeat)
-        if s.last_heartbeat - self._last_heartbeat_seen > 3.0 and self._last_heartbeat_seen:
+        lost = now - s.last_heartbeat > LINK_LOST_S
+        if lost and not self.link_lost:
+            log.warning("no heartbeat from the autopilot for %.0f s", now - s.last_heartbeat)
+        elif self.link_lost and not lost:
             log.info("autopilot heard again; asking for its telemetry streams")
             self.request_streams()
-        self._last_heartbeat_seen = s.last_heartbeat
+        self.link_lost = lost
         if (
             self.last_contact is not None and self.state != "failsafe"
             and now - self.last_contact > self.config.failsafe_timeout
@@ -617,7 +631,8 @@ class Bridge:
                 self._sensor_jobs.put(None)
 
     def shutdown(self) -> None:
-        if self.config.hold_on_exit:
+        # only a boat the bridge drives (GUIDED) is stopped; a pilot's mode is left alone
+        if self.config.hold_on_exit and self.link.snapshot().custom_mode == MODE_GUIDED:
             try:
                 self.link.set_mode(MODE_HOLD)
             except Exception as exc:

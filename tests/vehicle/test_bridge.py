@@ -22,7 +22,7 @@ from guadal_cli.fleet.broker import start_broker
 from guadal_cli.maps.format import haversine_m
 from vehicle_support import Planner, Stack
 
-HOLD, GUIDED = 4, 15
+MANUAL, HOLD, GUIDED = 0, 4, 15
 
 
 @pytest.fixture(scope="module")
@@ -204,6 +204,21 @@ def test_hold_stops_the_boat_and_the_next_goto_resumes(shared, planner):
     seq = planner.goto(g.node_at(3, 2), g)
     planner.wait_ack(seq, "reached", 20)
     assert planner.status()["state"] == "online"
+
+
+def test_a_pilot_taking_over_ends_the_goto_and_is_not_overruled(shared, planner):
+    g = shared.graph
+    seq = planner.goto(g.node_at(5, 7), g)
+    planner.wait_ack(seq, "accepted", 5)
+    shared.emulator.heartbeat(lambda hb: hb.custom_mode == GUIDED, 5, "not driving in GUIDED")
+    shared.emulator.set_mode(MANUAL)  # the RC switch
+    assert "left GUIDED (now MANUAL)" in planner.wait_ack(seq, "failed", 5)["reason"]
+    # the bridge leaves the pilot in control: the boat stays in MANUAL (ten heartbeats, half a second)
+    planner.wait_status(lambda st: st["mode"] == "MANUAL", 5, "the bridge did not see MANUAL")
+    for _ in range(10):
+        assert shared.emulator.heartbeat(lambda hb: True, 5, "no heartbeat").custom_mode == MANUAL
+    seq = planner.goto(g.node_at(3, 2), g)  # the planner's next goto takes it back
+    planner.wait_ack(seq, "reached", 20)
 
 
 def test_bridge_comes_back_after_a_broker_restart(shared, own_broker, planner):
