@@ -217,7 +217,9 @@ def _battery(boat: EmulatedBoat) -> tuple[int, int, int]:
 def _sys_status(boat: EmulatedBoat) -> None:
     mv, ca, pct = _battery(boat)
     bad = boat.counters["bad_packets"]
-    boat.mav.sys_status_send(SENSORS, SENSORS, SENSORS, 100, mv, ca, pct, 0, min(bad, 65535), 0, 0, 0, 0)
+    # no fence is configured, and ArduPilot then reports the fence as healthy (never breached)
+    health = SENSORS | mavlink.MAV_SYS_STATUS_GEOFENCE
+    boat.mav.sys_status_send(SENSORS, SENSORS, health, 100, mv, ca, pct, 0, min(bad, 65535), 0, 0, 0, 0)
 
 
 def _battery_status(boat: EmulatedBoat) -> None:
