@@ -25,15 +25,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Annotated
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 from scipy.sparse import csr_matrix
 
 from ..fleet.base import Measurement
 from .base import Environment
-from .world import DriftConfig, History, Site, substeps
+from .world import DriftConfig, History, Site, count_or_list, place, substeps
 
 
 class OilSource(Site):
@@ -48,8 +47,9 @@ class OilSource(Site):
 
 class OilSpillConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    sources: Annotated[int, Field(ge=1, le=100)] | Annotated[list[OilSource], Field(min_length=1)] = Field(
-        default=1, description="Number of random sources (default release) on the largest water body, or a list of sources."
+    sources: list[OilSource] = Field(
+        default=1, validate_default=True,
+        description="Number of random sources (default release) on the largest water body, or a list of sources.",
     )
     diffusivity: float = Field(default=0.05, ge=0, description="Horizontal diffusivity D, m2/s.")
     drift: DriftConfig = DriftConfig()
@@ -58,6 +58,11 @@ class OilSpillConfig(BaseModel):
     view_radius_m: float = Field(default=10.0, ge=0, description="A sample overwrites the observed map within this radius.")
     stale_after_s: float = Field(default=600.0, gt=0, description="An observation older than this is a lead worth renewing.")
     max_substep_s: float = Field(default=30.0, gt=0, description="Longest integration sub-step, seconds.")
+
+    @field_validator("sources", mode="before")
+    @classmethod
+    def _sources(cls, value):
+        return count_or_list(value, "sources")
 
 
 class OilSpillEnvironment(Environment):
@@ -70,10 +75,8 @@ class OilSpillEnvironment(Environment):
         g = graph
         self._dx = float(g.map.cell_size_m)
         self._area = self._dx**2
-        if isinstance(config.sources, list):
-            self._source_nodes = [s.resolve(g, f"environment.sources[{i}]") for i, s in enumerate(config.sources)]
-        else:
-            self._source_nodes = None
+        for i, source in enumerate(config.sources):  # a bad place is a validation error, not a run-time one
+            source.resolve(g, f"environment.sources[{i}]")
         # faces between 4-neighbouring water cells: a -> b is east (along x) or south (along -y)
         east = [(a, g.node_at(int(g.rows[a]), int(g.cols[a]) + 1)) for a in range(g.n_nodes)]
         south = [(a, g.node_at(int(g.rows[a]) + 1, int(g.cols[a]))) for a in range(g.n_nodes)]
@@ -93,12 +96,7 @@ class OilSpillEnvironment(Environment):
     def reset(self, seed: int) -> None:
         rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
         g = self.graph
-        if self._source_nodes is None:
-            body = np.nonzero(g.component == int(np.argmax(np.bincount(g.component))))[0]
-            nodes = body[rng.choice(len(body), size=self.config.sources, replace=len(body) < self.config.sources)]
-            self._sources = [(int(n), OilSource(node=int(n))) for n in nodes]
-        else:
-            self._sources = list(zip(self._source_nodes, self.config.sources))
+        self._sources = list(zip(place(self.config.sources, g, "environment.sources", rng), self.config.sources))
         self._footprints = [g.nodes_within(n, s.radius_m) for n, s in self._sources]
         self.mass = np.zeros(g.n_nodes)
         self.released = 0.0

@@ -31,27 +31,32 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Annotated
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from ..fleet.base import Measurement
 from .base import Environment
-from .world import CellLocator, DriftConfig, History, Site, substeps
+from .world import CellLocator, DriftConfig, History, Site, count_or_list, place, substeps
 
 
 class TrashConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     items: int = Field(default=40, ge=1, le=100_000, description="Number of floating items.")
-    spots: Annotated[int, Field(ge=1, le=1000)] | Annotated[list[Site], Field(min_length=1)] = Field(
-        default=3, description="Number of random spots on the largest water body, or a list of {node}|{row, col}|{lat, lon}."
+    spots: list[Site] = Field(
+        default=3, validate_default=True,
+        description="Number of random spots on the largest water body, or a list of {node}|{row, col}|{lat, lon}|{} (random).",
     )
     spot_radius_m: float = Field(default=8.0, gt=0, description="Spread (standard deviation, metres) of items around a spot.")
     vision_radius_m: float = Field(default=10.0, ge=0, description="Vehicles see items within this many metres of their node.")
     capacity: int | None = Field(default=None, ge=1, description="Items a vehicle can hold; null: unlimited.")
     drift: DriftConfig = DriftConfig()
     jitter: float = Field(default=0.0, ge=0, description="Random-walk strength of the drift, m/sqrt(s).")
+
+    @field_validator("spots", mode="before")
+    @classmethod
+    def _spots(cls, value):
+        return count_or_list(value, "spots")
 
 
 class TrashEnvironment(Environment):
@@ -64,10 +69,8 @@ class TrashEnvironment(Environment):
     def __init__(self, config: TrashConfig, graph, base_dir=None):
         super().__init__(config, graph, base_dir)
         self._locator = CellLocator(graph)
-        if isinstance(config.spots, list):
-            self._spot_nodes = [s.resolve(graph, f"environment.spots[{i}]") for i, s in enumerate(config.spots)]
-        else:
-            self._spot_nodes = None
+        for i, site in enumerate(config.spots):  # a bad place is a validation error, not a run-time one
+            site.resolve(graph, f"environment.spots[{i}]")
         self._velocity = config.drift.velocity
         speed = float(np.hypot(*self._velocity))
         half_cell = 0.5 * graph.map.cell_size_m
@@ -99,11 +102,7 @@ class TrashEnvironment(Environment):
     def _scatter(self, rng: np.random.Generator) -> np.ndarray:
         """Items around spots, redrawn (up to 20 times) while on land, else at the spot's centre."""
         g = self.graph
-        if self._spot_nodes is None:
-            body = np.nonzero(g.component == int(np.argmax(np.bincount(g.component))))[0]
-            spots = body[rng.choice(len(body), size=self.config.spots, replace=len(body) < self.config.spots)]
-        else:
-            spots = np.asarray(self._spot_nodes, dtype=int)
+        spots = np.asarray(place(self.config.spots, g, "environment.spots", rng), dtype=int)
         centres = g.xy[spots[rng.integers(len(spots), size=self.config.items)]]
         xy = centres + rng.normal(0.0, self.config.spot_radius_m, size=centres.shape)
         for _ in range(20):

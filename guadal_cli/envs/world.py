@@ -25,7 +25,7 @@ from ..graph import NavGraph
 
 
 class Site(BaseModel):
-    """One of ``{node}``, ``{row, col}`` or ``{lat, lon}``."""
+    """At most one of ``{node}``, ``{row, col}`` or ``{lat, lon}``; none: a random water node."""
 
     model_config = ConfigDict(extra="forbid")
     node: int | None = Field(default=None, ge=0)
@@ -37,16 +37,22 @@ class Site(BaseModel):
     @model_validator(mode="after")
     def _one_form(self):
         forms = [self.node is not None, self.row is not None or self.col is not None, self.lat is not None or self.lon is not None]
-        if sum(forms) != 1:
-            raise ValueError("give exactly one of {node}, {row, col} or {lat, lon}")
+        if sum(forms) > 1:
+            raise ValueError("give one of {node}, {row, col} or {lat, lon} (or none for a random place), not several")
         if forms[1] and (self.row is None or self.col is None):
             raise ValueError("a grid position needs both row and col")
         if forms[2] and (self.lat is None or self.lon is None):
             raise ValueError("a geographic position needs both lat and lon")
         return self
 
-    def resolve(self, graph: NavGraph, where: str) -> int:
-        """The water node of this site; ``where`` names the field in errors."""
+    @property
+    def is_random(self) -> bool:
+        return self.node is None and self.row is None and self.lat is None
+
+    def resolve(self, graph: NavGraph, where: str) -> int | None:
+        """The water node of this site (None when random); ``where`` names the field in errors."""
+        if self.is_random:
+            return None
         if self.node is not None:
             if self.node >= graph.n_nodes:
                 raise GuadalError(f"{where}: node {self.node} does not exist (nodes are 0..{graph.n_nodes - 1}).")
@@ -61,6 +67,26 @@ class Site(BaseModel):
         if node is None:
             raise GuadalError(f"{where}: ({self.lat}, {self.lon}) is on land or outside the map; it must be water.")
         return node
+
+
+def count_or_list(value, what: str):
+    """Let a list of places also be written as a count: ``3`` means three random places."""
+    if isinstance(value, bool) or not isinstance(value, (int, list)):
+        raise ValueError(f"must be a number of random {what} or a list of them")
+    if isinstance(value, int):
+        if not 1 <= value <= 1000:
+            raise ValueError(f"must be between 1 and 1000 {what}")
+        return [{} for _ in range(value)]
+    if not value:
+        raise ValueError(f"must name at least one of the {what}")
+    return value
+
+
+def place(sites: list[Site], graph: NavGraph, where: str, rng: np.random.Generator) -> list[int]:
+    """Water nodes of ``sites``; random ones are drawn from the largest water body."""
+    fixed = [s.resolve(graph, f"{where}[{i}]") for i, s in enumerate(sites)]
+    body = np.nonzero(graph.component == int(np.argmax(np.bincount(graph.component))))[0]
+    return [int(body[rng.integers(len(body))]) if n is None else n for n in fixed]
 
 
 class DriftConfig(BaseModel):
