@@ -96,9 +96,6 @@ class EmulatedBoat:
     def time_boot_ms(self) -> int:
         return int(self.time_s * 1000.0) & 0xFFFFFFFF
 
-    def position(self) -> tuple[float, float]:
-        return self.frame.to_global(self.hull.east, self.hull.north)
-
     def distance_to(self, east: float, north: float) -> float:
         return math.hypot(east - self.hull.east, north - self.hull.north)
 
@@ -130,7 +127,8 @@ class EmulatedBoat:
         """Integrate the boat and its autopilot up to simulated time ``t``."""
         while self.time_s < t:
             if self.hull.at_rest and not (self.armed and self.goal is not None):
-                self.time_s = t  # nothing moves: skip the integration
+                self._drain_battery(t - self.time_s)  # nothing moves: skip the integration
+                self.time_s = t
                 return
             dt = min(MAX_SUBSTEP_S, t - self.time_s)
             want_speed, want_heading = self._steer()
@@ -266,6 +264,11 @@ class EmulatedBoat:
 
     def _on_heartbeat(self, msg) -> None:
         """GCS heartbeats only keep the link alive."""
+
+    def _on_timesync(self, msg) -> None:
+        """Answer a time-sync request with the simulated clock, so the peer learns *its* offset."""
+        if msg.tc1 == 0:
+            self.mav.timesync_send(int(self.time_s * 1e9), msg.ts1)
 
     def _on_set_mode(self, msg) -> None:
         result = self._set_mode_common(msg.base_mode, msg.custom_mode)

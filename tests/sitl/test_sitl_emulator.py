@@ -437,6 +437,11 @@ def test_pseudo_terminal_serial_endpoint(fleet):
     assert hb.get_srcSystem() == 2 and hb.type == 11
     conn.mav.param_request_read_send(2, 1, b"WP_RADIUS", -1)
     assert wait_for(conn, "PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS").param_value == pytest.approx(2.0)
+    # TIMESYNC answers with the vehicle's (simulated) clock
+    conn.mav.timesync_send(0, 123456789)
+    reply = wait_for(conn, "TIMESYNC", lambda m: m.ts1 == 123456789)
+    boot_ms = wait_for(conn, "GLOBAL_POSITION_INT").time_boot_ms
+    assert 0 < reply.tc1 / 1e6 <= boot_ms
     conn.close()
 
 
