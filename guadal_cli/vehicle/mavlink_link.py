@@ -133,13 +133,17 @@ class AutopilotLink:
             pass
 
     def _read_loop(self) -> None:
+        last_error = None
         while not self._stop.is_set():
             try:
                 msg = self.master.recv_match(blocking=True, timeout=0.2)
             except Exception as exc:  # a garbled frame or a dropped link: keep listening
-                log.warning("MAVLink read error on '%s': %s", self.connection, exc)
+                if str(exc) != last_error:  # once per kind of error, not twice a second
+                    log.warning("MAVLink read error on '%s': %s", self.connection, exc)
+                    last_error = str(exc)
                 self._stop.wait(0.5)
                 continue
+            last_error = None
             if msg is None:
                 continue
             kind = msg.get_type()
