@@ -29,7 +29,7 @@ MAX_FRAMES = 120
 FPS = 8
 DPI = 80
 FORMATS = ("gif", "mp4")
-TITLES = {"ground_truth": "ground truth", "mean": "estimated mean", "std": "uncertainty (std)"}
+TITLES = {"ground_truth": "ground truth", "mean": "estimated mean", "std": "uncertainty (std)", "water": "map"}
 
 
 def ffmpeg_available() -> bool:
@@ -87,23 +87,26 @@ def animate(run: Run, out_dir: Path, fmt: str = "gif", max_frames: int = MAX_FRA
     except Exception as exc:  # any plugin failure only degrades the picture
         replay, first = None, {}
         warning = f"run '{run.name}': the model could not be replayed ({exc}); the animation shows the vehicles only."
-    panels = []
-    if "ground_truth" in run.fields:
-        panels.append("ground_truth")
+    truth = run.fields.get("ground_truth")
+    if truth is None and replay is not None and replay.env.ground_truth is not None:
+        truth = np.asarray(replay.env.ground_truth, dtype=float)  # a killed run wrote no fields.csv
+    panels = ["ground_truth"] if truth is not None else []
     panels += list(first)[: 3 - len(panels)]
     if not panels:
-        panels = [c for c, _ in field_panels(run)][:1]
+        panels = [c for c, _ in field_panels(run)][:1] or ["water"]
     steps_col = plan[next(iter(plan))]["step"]
     last = int(np.nanmax(steps_col)) if len(steps_col) else 0
     steps = frame_steps(last, max_frames)
-    node_rows, node_cols = _node_cells(run, grid)
+    node_rows, node_cols = grid.rows, grid.cols  # indexed by node id
 
     fig = Figure(figsize=(3.4 * max(1, len(panels)), 2.8), layout="constrained")
     images, trails, crosses, samples = [], [], [], []
     for k, column in enumerate(panels):
         ax = fig.add_subplot(1, len(panels), k + 1)
-        static = run.fields.get(column) if replay is None or column not in first else first[column]
+        static = truth if column == "ground_truth" else run.fields.get(column) if replay is None or column not in first else first[column]
         vmin, vmax = shared_limits(run, column)
+        if column in ("ground_truth", "mean") and vmin is None and truth is not None:
+            vmin, vmax = float(np.nanmin(truth)), float(np.nanmax(truth))
         if column == "std" and replay is not None:
             vmin, vmax = 0.0, float(np.nanmax(first["std"])) or 1.0
         images.append(draw_field(ax, grid, static if static is not None else np.zeros(len(grid.rows)),
@@ -169,13 +172,3 @@ def write_mp4(frames: list[np.ndarray], path: Path) -> None:
     result = subprocess.run(cmd, input=data, capture_output=True, check=False)
     if result.returncode != 0:
         raise GuadalError(f"ffmpeg could not write '{path}': {result.stderr.decode(errors='replace').strip()[:300]}")
-
-
-def _node_cells(run: Run, grid) -> tuple[np.ndarray, np.ndarray]:
-    """Row and column of every node id, indexed by node (from fields.csv)."""
-    f = run.fields
-    nodes = f["node"].astype(int)
-    rows = np.zeros(int(nodes.max()) + 1, dtype=float)
-    cols = np.zeros_like(rows)
-    rows[nodes], cols[nodes] = f["row"], f["col"]
-    return rows, cols

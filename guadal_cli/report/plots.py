@@ -110,25 +110,30 @@ class Grid:
 
 
 def run_grid(run: Run) -> Grid | None:
-    """The grid of the run's map: from the map file when it can be read, else from fields.csv."""
+    """Cells of the run's nodes, indexed by node id, and the map's shape and projection.
+
+    Rows and columns come from fields.csv (what the run used); a run killed before writing it
+    falls back to the map file, whose water cells in row-major order are the node ids.
+    """
     f = run.fields
-    projection = None
-    shape = None
-    path = run.map_path
-    if path:
+    map_ = None
+    if run.map_path:
         try:
-            map_ = load_map(path)
-            shape, projection = map_.shape, map_.projection
+            map_ = load_map(run.map_path)
         except GuadalError:
-            pass
-    if "row" not in f or not len(f["row"]):
+            map_ = None
+    if "row" in f and len(f["row"]):
+        rows, cols = f["row"].astype(int), f["col"].astype(int)
+    elif map_ is not None and map_.water_nodes == run.manifest.get("map", {}).get("water_nodes", map_.water_nodes):
+        rows, cols = np.nonzero(map_.mask)
+    else:
         return None
-    rows, cols = f["row"].astype(int), f["col"].astype(int)
-    if shape is None:
+    if map_ is not None:
+        shape = map_.shape
+    else:
         shape = tuple(run.manifest.get("map", {}).get("shape") or (int(rows.max()) + 1, int(cols.max()) + 1))
-    if rows.max() >= shape[0] or cols.max() >= shape[1]:
-        shape = (max(shape[0], int(rows.max()) + 1), max(shape[1], int(cols.max()) + 1))
-    return Grid(shape=tuple(shape), rows=rows, cols=cols, projection=projection)
+    shape = (max(shape[0], int(rows.max()) + 1), max(shape[1], int(cols.max()) + 1))
+    return Grid(shape=shape, rows=rows, cols=cols, projection=map_.projection if map_ is not None else None)
 
 
 def field_panels(run: Run) -> list[tuple[str, str]]:
@@ -151,8 +156,9 @@ def draw_field(ax, grid: Grid, values: np.ndarray, cmap: str, vmin=None, vmax=No
 
 def shared_limits(run: Run, column: str) -> tuple[float | None, float | None]:
     """Truth and mean share one colour scale so they can be compared by eye."""
-    if column in ("ground_truth", "mean"):
-        vals = np.concatenate([run.fields[c] for c in ("ground_truth", "mean") if c in run.fields])
+    present = [run.fields[c] for c in ("ground_truth", "mean") if c in run.fields]
+    if column in ("ground_truth", "mean") and present:
+        vals = np.concatenate(present)
         vals = vals[~np.isnan(vals)]
         if vals.size:
             return float(vals.min()), float(vals.max())

@@ -132,3 +132,49 @@ def test_runs_on_different_maps_get_a_warning(runs_root, tmp_path):
     assert out.exit_code == 0
     assert "different maps" in out.stderr
     assert not build(find_runs([runs_root]), Options()).warnings
+
+
+def test_a_killed_run_is_reported_as_unfinished_with_what_it_wrote(tmp_path):
+    """SIGKILL a real ``guadal run`` mid-mission: no fields.csv, manifest still 'running'."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import yaml
+    from support import base_mission
+
+    mission = base_mission(name="killed", seed=4)
+    mission["fleet"] = {**mission["fleet"], "max_distance": 925.0}
+    path = tmp_path / "killed.yaml"
+    path.write_text(yaml.safe_dump(mission))
+    run_dir = tmp_path / "runs" / "killed"
+    proc = subprocess.Popen([sys.executable, "-m", "guadal_cli", "run", str(path), "-q", "-o", str(run_dir)])
+    metrics = run_dir / "metrics.csv"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None:
+        if metrics.exists() and metrics.read_text().count("\n") >= 4:
+            break
+        time.sleep(0.005)  # polling for the condition, not waiting a fixed time
+    assert proc.poll() is None, "the mission ended before it could be killed"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert not (run_dir / "fields.csv").exists()
+
+    report = build(find_runs([run_dir]), Options())
+    (row,) = report.run_rows
+    values = dict(zip(report.run_columns, row))
+    assert values["status"] == "unfinished"
+    with open(metrics, newline="") as fh:
+        rows = [r for r in csv.DictReader(fh)]
+    assert values["steps"] == int(rows[-1]["step"]) and values["rmse"] == float(rows[-1]["rmse"])
+
+    out_dir = tmp_path / "report"
+    result = invoke("report", run_dir, "-o", out_dir, "--frames", "4")
+    assert result.exit_code == 0, result.stderr
+    assert "did not complete" in result.stderr
+    assert (out_dir / "animations" / "animation_killed.gif").exists()  # model replayed from the samples
+    assert not (out_dir / "figures" / "map_killed.png").exists()  # no final fields were written
+    geo = json.loads((out_dir / "geo" / "killed.geojson").read_text())
+    assert geo["features"] and geo["features"][0]["properties"]["status"] == "unfinished"
