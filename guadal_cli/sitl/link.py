@@ -219,10 +219,11 @@ class UdpOut(_Endpoint):
     whoever answers on that socket."""
 
     def __init__(self, link: Link, host: str, port: int):
+        address = socket.gethostbyname(host)  # once, not per packet
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        sock.bind(("0.0.0.0" if host not in ("127.0.0.1", "localhost") else "127.0.0.1", 0))
+        sock.bind(("127.0.0.1" if address.startswith("127.") else "0.0.0.0", 0))
         sock.setblocking(False)
-        self.destination = (host, port)
+        self.destination = (address, port)
         super().__init__(link, sock)
 
     def _read(self) -> bytes | None:

@@ -27,6 +27,8 @@ from .vehicle import EmulatedBoat, VehicleConfig
 
 #: wall seconds between physics updates of every boat (arrivals are detected on this beat)
 PHYSICS_TICK_S = 0.02
+#: system ids 1..250; the top of the range is where ground stations live (255 by habit)
+MAX_VEHICLES = 250
 #: metres east between consecutive default homes
 HOME_SPACING_M = 5.0
 
@@ -77,8 +79,13 @@ class SitlServer:
     """The boats, their links and the loop that drives them; ``open`` then ``run``."""
 
     def __init__(self, options: SitlOptions):
-        if options.vehicles < 1:
-            raise GuadalError("--vehicles must be at least 1.")
+        if not 1 <= options.vehicles <= MAX_VEHICLES:
+            raise GuadalError(f"--vehicles must be between 1 and {MAX_VEHICLES} (got {options.vehicles}).")
+        last = 10 * (options.vehicles - 1)
+        if options.base_port and not 0 < options.base_port <= 65535 - last:
+            raise GuadalError(f"--base-port {options.base_port} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}, or 0.")
+        if options.udp_out and not 0 < options.udp_out[1] <= 65535 - last:
+            raise GuadalError(f"--udp-out port {options.udp_out[1]} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}.")
         if options.speedup <= 0:
             raise GuadalError(f"--speedup must be positive (got {options.speedup}).")
         if options.max_speed <= 0:
@@ -117,6 +124,7 @@ class SitlServer:
             for i, home in enumerate(homes):
                 sysid = i + 1
                 link = Link(sysid, self.selector)
+                self.links.append(link)
                 boat = EmulatedBoat(
                     VehicleConfig(sysid, home, limits, opts.gps_noise_m, opts.current_en, opts.seed), link.mav
                 )
@@ -130,7 +138,11 @@ class SitlServer:
                         "choose another --base-port, or 0 for free ports."
                     ) from None
                 if opts.udp_out:
-                    UdpOut(link, opts.udp_out[0], opts.udp_out[1] + 10 * i)
+                    host, port = opts.udp_out[0], opts.udp_out[1] + 10 * i
+                    try:
+                        UdpOut(link, host, port)
+                    except OSError as exc:
+                        raise GuadalError(f"cannot send UDP to {host}:{port} for vehicle {sysid} ({exc}).") from None
                 serial = None
                 if opts.serial:
                     path = opts.serial[i] if len(opts.serial) > 1 else opts.serial[0]
@@ -140,7 +152,6 @@ class SitlServer:
                         raise GuadalError(f"cannot open serial device {path!r} for vehicle {sysid}: {exc}.") from None
                 self.serials.append(serial)
                 self.boats.append(boat)
-                self.links.append(link)
         except GuadalError:
             self.close()
             raise
