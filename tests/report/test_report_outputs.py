@@ -195,3 +195,16 @@ def test_mp4_needs_ffmpeg(runs_root, tmp_path):
     else:
         assert result.exit_code == 0, result.stderr
         assert (tmp_path / "animations" / "animation_greedy-1.mp4").stat().st_size > 1000
+
+
+def test_replayed_model_ends_where_the_run_ended(runs_root):
+    """The animation's model, rebuilt from measurements.csv, matches the run's final fields."""
+    from guadal_cli.report.animate import Replay
+
+    (run,) = find_runs([runs_root / "greedy-1"])
+    replay = Replay(run)
+    for step in (0, 3, run.steps):  # batches differ from the run's; the posterior must not
+        fields = replay.fields_at(step)
+    np.testing.assert_allclose(fields["mean"], run.fields["mean"], atol=1e-6)
+    np.testing.assert_allclose(fields["std"], run.fields["std"], atol=1e-6)
+    np.testing.assert_allclose(replay.env.ground_truth, run.fields["ground_truth"], rtol=1e-9)  # CSV keeps 10 digits

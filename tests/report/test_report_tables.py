@@ -178,3 +178,20 @@ def test_a_killed_run_is_reported_as_unfinished_with_what_it_wrote(tmp_path):
     assert not (out_dir / "figures" / "map_killed.png").exists()  # no final fields were written
     geo = json.loads((out_dir / "geo" / "killed.geojson").read_text())
     assert geo["features"] and geo["features"][0]["properties"]["status"] == "unfinished"
+
+
+def test_runs_of_different_environments_are_grouped_apart(runs_root, tmp_path):
+    import yaml
+
+    other = tmp_path / "other-env"
+    shutil.copytree(runs_root / "greedy-2", other)
+    mission = yaml.safe_load((other / "mission.resolved.yaml").read_text())
+    mission["environment"]["type"] = "another_env"
+    (other / "mission.resolved.yaml").write_text(yaml.safe_dump(mission))
+
+    report = build(find_runs([runs_root / "greedy-1", other]), Options())
+    assert report.group_by == ["environment.type", "algorithm.type"]
+    assert sorted(tuple(r[:2]) for r in report.group_rows) == [("another_env", "greedy"), ("gp", "greedy")]
+    assert any("2 environments" in w for w in report.warnings)
+    titles = [t for t, _, _ in report.display_tables()]
+    assert sum("in environment gp" in t for t in titles) == 2 and sum("in environment another_env" in t for t in titles) == 2
