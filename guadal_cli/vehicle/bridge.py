@@ -98,7 +98,8 @@ class Bridge:
         self.autopilot_text: str | None = None
         self.last_seq = -1
         self.last_kind: str | None = None
-        self.goal: Goal | None = None
+        self.goal: Goal | None = None  # the goto being driven, or the last one driven
+        self.rejected: Goal | None = None  # the newest goto, when it was refused (for duplicates)
         self.last_reply: tuple[str, bytes] | None = None  # (channel, payload) answering the newest non-goto
         self.last_contact: float | None = None  # monotonic; None until the planner is first heard
         self.want_mode: int | None = None
@@ -261,16 +262,15 @@ class Bridge:
     def _repeat_answer(self, kind: str, seq: int) -> None:
         if kind != self.last_kind:
             log.warning("seq %d was a %s, now it comes as a %s; answering nothing.", seq, self.last_kind, kind)
-        elif kind == "goto" and self.goal is not None and self.goal.seq == seq:
-            self._ack_goal(self.goal)
+        elif kind == "goto":
+            for goal in (self.goal, self.rejected):
+                if goal is not None and goal.seq == seq:
+                    self._ack_goal(goal)
         elif kind in ("measure", "hold") and self.last_reply is not None:
             self._publish(*self.last_reply)
 
     def start_goto(self, data: dict) -> None:
         goal = Goal(seq=data["seq"], node=data["node"], lat=float(data["lat"]), lon=float(data["lon"]))
-        previous, self.goal = self.goal, goal
-        if previous is not None and previous.active:
-            log.info("goto seq %d replaces seq %d", goal.seq, previous.seq)
         s = self.link.snapshot()
         reason = self.planner.check_target(goal.node, goal.lat, goal.lon)
         if reason is None and s.lat is None:
@@ -283,11 +283,16 @@ class Bridge:
             except GuadalError as exc:
                 reason = str(exc)
         if reason is not None:
+            # a refused goto changes nothing: a goto under way goes on
             goal.status, goal.reason = "rejected", reason
+            self.rejected = goal
             self.count("rejected_goto")
             log.warning("rejected goto seq %d to node %d: %s", goal.seq, goal.node, reason)
             self._ack_goal(goal)
             return
+        if self.goal is not None and self.goal.active:
+            log.info("goto seq %d replaces seq %d", goal.seq, self.goal.seq)
+        self.goal, self.rejected = goal, None
         log.info("goto seq %d to node %d: %d waypoint(s)", goal.seq, goal.node, len(goal.waypoints))
         self._ack_goal(goal)
         if self.state != "online":

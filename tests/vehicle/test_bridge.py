@@ -106,6 +106,9 @@ def test_targets_off_the_water_are_rejected_with_a_reason(shared, planner):
     assert "on land" in planner.wait_ack(land, "rejected", 5)["reason"]
     assert "outside the map" in planner.wait_ack(off_map, "rejected", 5)["reason"]
     assert f"not the node {node}" in planner.wait_ack(mismatch, "rejected", 5)["reason"]
+    # the same command again (a retransmission) gets the same answer
+    planner.send("goto", seq=mismatch, node=node, lat=float(g.lat[other]), lon=float(g.lon[other]))
+    planner.wait(lambda: len(planner.acks(mismatch, "rejected")) == 2, 5, "duplicate of a rejected goto not answered")
     assert not planner.acks(status="accepted")
 
 

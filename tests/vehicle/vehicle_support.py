@@ -46,6 +46,7 @@ class Emulator:
     """``guadal sitl`` for one boat, plus a UDP listener on its telemetry stream (to see its modes)."""
 
     def __init__(self, home, speedup=40.0, serial=False, max_speed=2.0):
+        os.environ["MAVLINK20"] = "1"  # the emulator speaks MAVLink 2, as ArduPilot does
         from pymavlink import mavutil
 
         self.stream = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=250)
