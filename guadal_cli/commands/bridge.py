@@ -13,8 +13,8 @@ from ..console import fail
 from ..errors import GuadalError
 
 
-class _Stopped(Exception):
-    """SIGTERM/SIGINT before the bridge was serving."""
+class _Stopped(BaseException):
+    """SIGTERM/SIGINT before the bridge was serving (a BaseException, so no "except Exception" swallows it)."""
 
 
 def register(app: typer.Typer) -> None:

@@ -62,3 +62,25 @@ def test_no_autopilot_is_a_clear_error(run, tmp_path, lake):
                        "--connect-timeout", "0.5")
     assert code == 2
     assert "no autopilot heartbeat on 'udpin:127.0.0.1:" in output and "within 0.5 s" in output
+
+
+def test_sigterm_while_waiting_for_the_autopilot_exits_quietly(lake, tmp_path):
+    import signal
+    import subprocess
+
+    from fleet_support import wait_for
+    from vehicle_support import GUADAL
+
+    log = tmp_path / "bridge.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen(GUADAL + ["bridge", "--vehicle-id", "0", "--mavlink", f"udpin:127.0.0.1:{free_udp_port()}",
+                                          "--map", str(lake[2])], stdout=out, stderr=subprocess.STDOUT)
+        try:
+            wait_for(lambda: "waiting for the autopilot" in log.read_text(), 20, "the bridge did not start waiting")
+            proc.send_signal(signal.SIGTERM)
+            assert proc.wait(10) == 0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert "Traceback" not in log.read_text() and "error" not in log.read_text().lower()
