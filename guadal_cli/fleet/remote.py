@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import socket
 import ssl
 import threading
 import time
@@ -44,6 +45,16 @@ log = logging.getLogger("guadal.remote")
 _LOUD_WARNINGS = 5
 #: answers the protocol expects now and then (a re-sent command answered twice): debug only
 _EXPECTED_DROPS = {"stale", "duplicate"}
+
+
+def no_delay(client: mqtt.Client) -> None:
+    """Send small MQTT packets at once: with Nagle's algorithm a command can wait ~40 ms."""
+    sock = client.socket()
+    if sock is not None and hasattr(sock, "setsockopt"):
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError:
+            pass
 
 
 # --- configuration -------------------------------------------------------------------------
@@ -115,7 +126,8 @@ class RemoteVehicle:
     measure: Command | None = None
     seq: int = 0
     last_seq: int = 0
-    t: float | None = None  # latest telemetry clock
+    t: float | None = None  # latest reading of the vehicle's clock (telemetry, acks, measurements)
+    fix_t: float | None = None  # clock of the latest GPS fix
     t0: float | None = None  # the vehicle's clock at the end of reset
     syncing: bool = False  # waiting for a fresh clock reading to set t0
     fix: tuple[float, float] | None = None
@@ -168,7 +180,10 @@ class RemoteFleet(Fleet):
         if cfg.username is not None:
             client.username_pw_set(cfg.username, cfg.broker_password())
         if cfg.tls:
-            client.tls_set(ca_certs=cfg.ca_file, cert_reqs=ssl.CERT_REQUIRED)
+            try:
+                client.tls_set(ca_certs=cfg.ca_file, cert_reqs=ssl.CERT_REQUIRED)
+            except (OSError, ssl.SSLError, ValueError) as exc:
+                raise GuadalError(f"backend.ca_file: cannot load the CA certificate '{cfg.ca_file}' ({exc}).") from exc
         client.will_set(msg.topic(cfg.fleet, None, "status"), msg.encode("status", state="offline"), qos=1, retain=True)
         client.reconnect_delay_set(min_delay=0.1, max_delay=2)
         client.max_inflight_messages_set(100)
@@ -217,6 +232,7 @@ class RemoteFleet(Fleet):
         if reason_code.is_failure:
             self._last_connect_error = f"broker refused the connection: {reason_code}"
             return
+        no_delay(client)
         fleet = self.config.fleet
         client.subscribe([
             (f"{fleet}/vehicle/+/ack", 1), (f"{fleet}/vehicle/+/measurement", 1),
@@ -318,9 +334,10 @@ class RemoteFleet(Fleet):
 
     def _on_telemetry(self, v: RemoteVehicle, data: dict) -> None:
         t, lat, lon = float(data["t"]), float(data["lat"]), float(data["lon"])
-        if v.t is not None and t < v.t:
-            return self._drop("stale", f"vehicle {v.id}: telemetry at t={t} is older than t={v.t}.")
-        v.t, v.fix = t, (lat, lon)
+        if v.fix_t is not None and t < v.fix_t:
+            return self._drop("stale", f"vehicle {v.id}: telemetry at t={t} is older than the last fix (t={v.fix_t}).")
+        v.fix_t, v.fix = t, (lat, lon)
+        self._clock(v, data)
         if v.t0 is not None:
             v.track.append({"vehicle": v.id, "lat": lat, "lon": lon, "time_s": t - v.t0})
 
