@@ -141,13 +141,12 @@ class History(Generic[T]):
         self._states = [state]
 
     def record(self, time_s: float, state: T) -> None:
-        if time_s < self._times[-1]:
-            raise GuadalError(f"mission time went backwards ({time_s} s after {self._times[-1]} s).")
-        if time_s == self._times[-1]:
-            self._states[-1] = state
-        else:
+        """Add the state at ``time_s``, which must not precede the newest snapshot."""
+        if time_s > self._times[-1]:
             self._times.append(float(time_s))
             self._states.append(state)
+        else:
+            self._states[-1] = state
 
     def at(self, time_s: float) -> T:
         i = bisect.bisect_right(self._times, float(time_s) + 1e-9) - 1
@@ -156,10 +155,6 @@ class History(Generic[T]):
     @property
     def latest(self) -> T:
         return self._states[-1]
-
-    @property
-    def time(self) -> float:
-        return self._times[-1]
 
     def forget(self) -> None:
         self._times, self._states = self._times[-1:], self._states[-1:]
