@@ -83,6 +83,8 @@ def check_options(options: Options) -> None:
         raise GuadalError(f"--x must be one of {', '.join(plots.X_AXES)} (got '{options.x_axis}').")
     if options.animate is not None and options.animate not in FORMATS:
         raise GuadalError(f"--animate must be one of {', '.join(FORMATS)} or none (got '{options.animate}').")
+    if not options.group_by:
+        raise GuadalError("--group-by needs at least one mission field, such as algorithm.type.")
     if options.max_frames < 2:
         raise GuadalError(f"--frames must be at least 2 (got {options.max_frames}).")
 

@@ -6,7 +6,6 @@ global changes and no display is needed. Every figure is written as PNG and SVG.
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -276,7 +275,3 @@ def deviation_summary(run: Run) -> dict[str, float]:
         return {}
     allv = np.concatenate(list(dev.values()))
     return {"gps_offtrack_mean_m": float(allv.mean()), "gps_offtrack_max_m": float(allv.max())} if allv.size else {}
-
-
-def finite(values) -> bool:
-    return any(not math.isnan(float(v)) for v in values)

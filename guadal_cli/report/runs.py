@@ -157,20 +157,24 @@ class Run:
     def fields(self) -> dict[str, np.ndarray]:
         return {k: as_floats(v) for k, v in read_columns(self.path / "fields.csv").items()}
 
+    @cached_property
+    def _tracks(self) -> dict[str, dict[int, dict[str, np.ndarray]]]:
+        t = self.trajectory
+        out: dict[str, dict[int, dict[str, np.ndarray]]] = {}
+        if not t:
+            return out
+        columns = {name: as_floats(cells) for name, cells in t.items() if name != "source"}
+        sources = np.asarray(t.get("source", []), dtype=object)
+        vehicles = columns["vehicle"]
+        for source in sorted(set(sources)):
+            for v in sorted({int(x) for x in vehicles[(sources == source) & ~np.isnan(vehicles)]}):
+                rows = (sources == source) & (vehicles == v)
+                out.setdefault(source, {})[v] = {name: values[rows] for name, values in columns.items()}
+        return out
+
     def track(self, source: str) -> dict[int, dict[str, np.ndarray]]:
         """Per vehicle, the rows of one source (``plan`` or ``gps``) as arrays, in file order."""
-        t = self.trajectory
-        if not t:
-            return {}
-        sources = t.get("source", [])
-        out: dict[int, dict[str, np.ndarray]] = {}
-        vehicles = as_floats(t["vehicle"])
-        for v in sorted({int(x) for x in vehicles[~np.isnan(vehicles)]}):
-            idx = [i for i, (veh, src) in enumerate(zip(vehicles, sources)) if veh == v and src == source]
-            if not idx:
-                continue
-            out[v] = {name: as_floats([t[name][i] for i in idx]) for name in t if name != "source"}
-        return out
+        return self._tracks.get(source, {})
 
     @property
     def has_gps(self) -> bool:

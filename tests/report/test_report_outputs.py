@@ -6,7 +6,6 @@ import base64
 import csv
 import io
 import json
-import math
 import re
 import shutil
 import xml.etree.ElementTree as ET

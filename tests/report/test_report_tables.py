@@ -58,6 +58,8 @@ def test_group_by_several_mission_fields(runs_root):
 def test_unknown_group_field_is_one_clear_error(runs_root):
     with pytest.raises(GuadalError, match="--group-by field 'algorithm.typo' is in none"):
         build(find_runs([runs_root]), Options(group_by=["algorithm.typo"]))
+    result = invoke("report", runs_root, "--group-by", " ,")
+    assert result.exit_code == 2 and "--group-by needs at least one mission field" in result.stderr
 
 
 def test_cli_json_csv_and_markdown_agree_with_the_csvs(runs_root):
@@ -171,7 +173,7 @@ def test_a_killed_run_is_reported_as_unfinished_with_what_it_wrote(tmp_path):
     assert values["steps"] == int(rows[-1]["step"]) and values["rmse"] == float(rows[-1]["rmse"])
 
     out_dir = tmp_path / "report"
-    result = invoke("report", run_dir, "-o", out_dir, "--frames", "4")
+    result = invoke("report", run_dir, "-o", out_dir, "--frames", "4", "--metrics", "rmse")
     assert result.exit_code == 0, result.stderr
     assert "did not complete" in result.stderr
     assert (out_dir / "animations" / "animation_killed.gif").exists()  # model replayed from the samples
