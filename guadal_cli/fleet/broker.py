@@ -10,6 +10,7 @@ SITL demo on a machine without Mosquitto. Run it alone with
 from __future__ import annotations
 
 import argparse
+import getpass
 import os
 import shutil
 import signal
@@ -157,8 +158,9 @@ def start_broker(
     log_path = wd / f"broker-{port}.log"
     if chosen == "mosquitto":
         conf = wd / f"mosquitto-{port}.conf"
+        # run as whoever started it: a switch of user would also cancel "die with the parent"
         conf.write_text(
-            f"listener {port} {host}\nallow_anonymous true\npersistence false\n"
+            f"user {getpass.getuser()}\nlistener {port} {host}\nallow_anonymous true\npersistence false\n"
             # small MQTT packets must not wait for Nagle's algorithm (40 ms per hop otherwise)
             f"set_tcp_nodelay true\nmax_packet_size 65536\nlog_dest stderr\nlog_type error\nlog_type warning\n"
         )

@@ -45,8 +45,9 @@ def processes_marked(mark: str) -> list[int]:
     return found
 
 
-@pytest.mark.parametrize("name", ["lake_greedy", "lake_expected_improvement"])
-def test_sim_and_sitl_send_the_same_targets(name, tmp_path, monkeypatch):
+@pytest.mark.parametrize("name, broker", [("lake_greedy", "mosquitto"), ("lake_expected_improvement", "embedded")])
+def test_sim_and_sitl_send_the_same_targets(name, broker, tmp_path, monkeypatch):
+    """Mosquitto for one, the embedded broker (a machine without Mosquitto) for the other."""
     sim = yaml.safe_load((ROOT / "missions" / f"{name}.yaml").read_text())
     sitl = yaml.safe_load((ROOT / "missions" / f"{name}_sitl.yaml").read_text())
     assert {k: v for k, v in sim.items() if k != "backend"} == {k: v for k, v in sitl.items() if k != "backend"}
@@ -57,7 +58,7 @@ def test_sim_and_sitl_send_the_same_targets(name, tmp_path, monkeypatch):
         mission["map"] = str(ROOT / "maps" / "urban_lake.json")
         mission["fleet"]["max_distance"] = 45
         if level == "sitl":
-            mission["backend"]["speedup"] = 200
+            mission["backend"].update(speedup=200, broker_kind=broker)
         path = tmp_path / f"{level}.yaml"
         path.write_text(yaml.safe_dump(mission))
         runs[level] = tmp_path / f"run-{level}"
