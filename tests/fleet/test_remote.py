@@ -183,3 +183,24 @@ def test_a_vehicle_whose_bridge_stops_is_done_with_a_reason(graph, stack):
         assert fleet.problems == ["vehicle 2 went offline (its bridge stopped or lost the broker); it takes no further part in the mission."]
     finally:
         fleet.close()
+
+
+def test_real_mission_reads_its_password_from_the_environment(monkeypatch):
+    from guadal_cli.mission import prepare
+    from support import ROOT
+
+    monkeypatch.delenv("GUADAL_MQTT_PASSWORD", raising=False)
+    prep = prepare(ROOT / "missions" / "lake_greedy_real.yaml")
+    assert prep.backend_config.measurements == "vehicle" and prep.backend_config.tls
+    backend = prep.backend_cls(prep.backend_config)
+    with pytest.raises(GuadalError, match="backend.password_env: environment variable 'GUADAL_MQTT_PASSWORD' is not set"):
+        backend.make_fleet(graph=prep.graph, fleet_config=prep.mission.fleet, sensor=None, mission=prep)
+
+
+def test_a_misspelt_backend_setting_is_named(write_mission):
+    from guadal_cli.mission import prepare
+    from support import base_mission
+
+    path = write_mission(base_mission(backend={"level": "sitl", "launch": True, "speedupp": 5}))
+    with pytest.raises(GuadalError, match=r"backend\.speedupp: unknown key \(allowed: .*speedup"):
+        prepare(path)
