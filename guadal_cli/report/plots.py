@@ -171,9 +171,11 @@ def final_maps(run: Run, out_dir: Path) -> list[Path]:
     if grid is None or not panels:
         return []
     plan = run.track("plan")
-    fig = Figure(figsize=(4.2 * len(panels), 3.4), layout="constrained")
+    cols = min(3, len(panels))  # truth, mean, std side by side; more fields wrap onto new rows
+    rows_n = -(-len(panels) // cols)
+    fig = Figure(figsize=(4.2 * cols, 3.2 * rows_n + 0.4), layout="constrained")
     for k, (column, title) in enumerate(panels):
-        ax = fig.add_subplot(1, len(panels), k + 1)
+        ax = fig.add_subplot(rows_n, cols, k + 1)
         vmin, vmax = shared_limits(run, column)
         cmap = "viridis" if column != "std" else "magma"
         image = draw_field(ax, grid, run.fields[column], cmap, vmin, vmax)
