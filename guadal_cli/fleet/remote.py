@@ -307,7 +307,10 @@ class RemoteFleet(Fleet):
             return
         if cmd is None:
             if v.measure is not None and v.measure.seq == seq:
-                return  # a bridge may acknowledge a measure before answering it
+                if status in ("rejected", "failed") and v.measure.open:
+                    v.measure.status, v.measure.reason = status, str(data.get("reason") or "no reason given")
+                    self._vehicle_done(v, f"vehicle {v.id} could not measure at node {v.measure.node}: {v.measure.reason}")
+                return  # an accepted measure is answered by a measurement
             kind = "stale" if seq <= v.seq else "unexpected_seq"
             return self._drop(kind, f"vehicle {v.id}: '{status}' ack for seq {seq}, which is not the current command.")
         if not cmd.open:
@@ -521,10 +524,13 @@ class RemoteFleet(Fleet):
                 f"vehicle {', '.join(late)} sent no measurement within {timeout:g} s; "
                 "raise backend.measure_timeout or check the bridge's --sensor."
             )
+        failed = [v.problem for v in asked if v.measure.status in ("rejected", "failed")]
+        if failed and len(failed) == len(asked):
+            raise GuadalError(f"no vehicle could measure: {' '.join(failed)}")
         out = []
         for v in asked:
             if v.measure.reply is None:
-                continue  # went offline while measuring
+                continue  # failed, or went offline while measuring: that vehicle is done
             r = v.measure.reply
             lat, lon = r.get("lat"), r.get("lon")
             if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in (lat, lon)):
@@ -566,6 +572,10 @@ class RemoteFleet(Fleet):
         if self._closed:
             return
         self._closed = True
+        noisy = {k: n for k, n in self.dropped.items() if k not in _EXPECTED_DROPS}
+        if noisy:
+            log.warning("ignored %d unusable MQTT messages during the mission (%s).", sum(noisy.values()),
+                        ", ".join(f"{k}: {n}" for k, n in sorted(noisy.items())))
         try:
             self._stop.set()
             if self._started:

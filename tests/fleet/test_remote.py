@@ -29,10 +29,18 @@ def graph():
     return NavGraph(load_map(LAKE))
 
 
+def probe_value(node: int) -> float:
+    """What the boats' (replayed) probes read at a node."""
+    return 100.0 + 0.5 * node
+
+
 @pytest.fixture(scope="module")
-def stack(graph):
+def stack(graph, tmp_path_factory):
+    survey = tmp_path_factory.mktemp("probe") / "survey.csv"
+    survey.write_text("node,value\n" + "".join(f"{n},{probe_value(n)}\n" for n in range(graph.n_nodes)))
     homes = [(float(graph.lat[n]), float(graph.lon[n])) for n in auto_positions(graph, N)]
-    s = Stack.launch(map_path=LAKE, vehicles=N, homes=homes, speedup=100, broker_kind="mosquitto", timeout=60)
+    s = Stack.launch(map_path=LAKE, vehicles=N, homes=homes, speedup=100, broker_kind="mosquitto", timeout=60,
+                     bridge_args=["--sensor", f"replay:{survey}"])
     yield s
     s.down()
 
@@ -73,6 +81,42 @@ def test_hops_move_the_boats_and_count_graph_metres(graph, stack):
         # a re-sent command may be answered twice (stale/duplicate); nothing else may be dropped
         assert set(fleet.dropped) <= {"stale", "duplicate"}
     finally:
+        fleet.close()
+
+
+def test_vehicle_measurements_come_from_the_boats_probes(graph, stack):
+    start = auto_positions(graph, N)
+    fleet = make_fleet(graph, stack.broker_port, measurements="vehicle")
+    try:
+        fleet.reset(start)
+        target = next(n for n in graph.neighbors(start[0]) if n not in start)
+        drive(fleet, {0: target})
+        samples = fleet.take_measurement([0, 2])
+        assert [(m.vehicle, m.node, m.value) for m in samples] == [(0, target, probe_value(target)),
+                                                                   (2, start[2], probe_value(start[2]))]
+        for m in samples:  # where the boat really was: within the arrival radius of the node
+            x, y = graph.map.projection.to_xy(m.lat, m.lon)
+            assert abs(float(x) - graph.x[m.node]) < 3 and abs(float(y) - graph.y[m.node]) < 3
+            assert m.time_s >= 0
+    finally:
+        fleet.close()
+
+
+def test_a_vehicle_in_failsafe_is_done_and_the_others_go_on(graph, stack):
+    start = auto_positions(graph, N)
+    fleet = make_fleet(graph, stack.broker_port)
+    raw = Inbox(stack.broker_port)
+    try:
+        fleet.reset(start)
+        raw.client.publish(msg.topic("guadal", 1, "status"), msg.encode("status", state="failsafe"), qos=1).wait_for_publish(10)
+        wait_for(lambda: fleet.vehicles[1].problem, 10, "the failsafe status was not taken into account")
+        hops = {v: next(n for n in graph.neighbors(start[v]) if n not in start) for v in (0, 1)}
+        reached, done = fleet.move(hops)
+        assert done == {0: False, 1: True, 2: False} and reached == {0: True, 1: True}
+        assert fleet.positions[1] == start[1] and fleet.distances[1] == 0.0
+        assert fleet.problems == ["vehicle 1 entered failsafe; it takes no further part in the mission."]
+    finally:
+        raw.close()
         fleet.close()
 
 
