@@ -124,6 +124,7 @@ class NavGraph:
             keep = np.ones(self.n_nodes, dtype=bool)
             keep[list(avoid - {a, b})] = False
             adj = self.adjacency.multiply(keep[:, None]).multiply(keep[None, :]).tocsr()
+            adj.eliminate_zeros()  # csgraph treats stored zeros as free edges
             dist, pred = dijkstra(adj, directed=False, indices=a, return_predecessors=True)
         else:
             dist, pred = self._dist_cache(int(a))

@@ -29,6 +29,8 @@ from .records import RunRecorder
 _WAIT_BEFORE_REROUTE = 2
 #: steps after which a blocked target is given up
 _WAIT_BEFORE_GIVING_UP = 6
+#: decisions in a row that move nobody (targets blocked for good) before the mission ends
+_IDLE_DECISIONS_BEFORE_STOP = 3
 
 
 @dataclass
@@ -99,6 +101,7 @@ class MissionRunner:
         self.visits = np.zeros(self.graph.n_nodes, dtype=int)
         self.samples = 0
         self.step = 0
+        self.stop_reason = ""
 
     # --- bookkeeping -----------------------------------------------------------------------
     def _manifest(self) -> dict:
@@ -254,21 +257,36 @@ class MissionRunner:
                 finally:
                     pass
             self.recorder.write_fields(self.graph, self.environment.ground_truth, self.environment.observation_fields())
-            self.recorder.finish(status, error, extra={"final_metrics": getattr(self, "last_metrics", None)})
+            self.recorder.finish(
+                status, error, extra={"stop_reason": self.stop_reason, "final_metrics": getattr(self, "last_metrics", None)}
+            )
             if previous_term is not None:
                 signal.signal(signal.SIGTERM, previous_term)
         return RunResult(self.output, status, self.step, self.last_metrics)
 
     def _mission_loop(self, fleet: Fleet) -> None:
         done = {v: False for v in range(self.n)}
-        while self.step < self.mission.max_steps:
-            if self.planner.done or all(done.values()):
+        idle_decisions = 0
+        while True:
+            if self.step >= self.mission.max_steps:
+                self.stop_reason = "max_steps reached"
+                return
+            if self.planner.done:
+                self.stop_reason = "the algorithm finished"
+                return
+            if all(done.values()):
+                self.stop_reason = "every vehicle spent its budget"
+                return
+            if idle_decisions >= _IDLE_DECISIONS_BEFORE_STOP:
+                self.stop_reason = f"the algorithm's last {idle_decisions} decisions moved no vehicle"
                 return
             positions = dict(fleet.positions)
             targets = self._check_targets(self.planner.next_targets(self._observation(fleet, done)), positions)
             targets = {v: t for v, t in targets.items() if not done[v] and t != positions[v]}
             if not targets:
-                return  # the planner has nothing left to send
+                self.stop_reason = "the algorithm sent no more targets"
+                return
+            step_before = self.step
             paths = {v: self.graph.shortest_path(positions[v], t)[1:] for v, t in targets.items()}
             pending: list[Measurement] = []
             waits: dict[int, int] = {}
@@ -303,3 +321,4 @@ class MissionRunner:
                 self._record(fleet, measurements)
             if pending:
                 self.environment.update(pending)
+            idle_decisions = idle_decisions + 1 if self.step == step_before else 0

@@ -178,3 +178,38 @@ def test_algorithm_registered_by_another_package_through_its_entry_point(tmp_pat
             "package": "guadal-northward 1.2.0"} in json.loads(listing.stdout)
     manifest = _northward_run(tmp_path, write_mission, "northward", env={"PYTHONPATH": str(site)})
     assert manifest["plugins"]["algorithm"] == {"name": "northward", "distribution": "guadal-northward", "version": "1.2.0"}
+
+
+STUBBORN = '''
+from guadal_cli.planners.base import Planner, TARGET
+
+class Stubborn(Planner):
+    """Always sends every vehicle to node 0, which vehicle 0 already holds: nobody can ever arrive."""
+    modes = (TARGET,)
+
+    def next_targets(self, obs):
+        return {v: 0 for v in obs.positions if v != 0}
+'''
+
+
+def test_a_planner_whose_targets_can_never_be_reached_ends_the_mission(tmp_path, write_mission):
+    (tmp_path / "stubborn.py").write_text(STUBBORN)
+    mission = write_mission(base_mission(algorithm={"type": "stubborn:Stubborn"},
+                                         fleet={"vehicles": 2, "initial_positions": [0, 40], "max_distance": 500}))
+    proc = run_cli("run", mission, "-o", tmp_path / "r", "-q", env={"PYTHONPATH": str(tmp_path)}, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    manifest = json.loads((tmp_path / "r" / "manifest.json").read_text())
+    assert manifest["status"] == "complete" and "moved no vehicle" in manifest["stop_reason"]
+
+
+def test_detours_avoid_the_nodes_they_are_told_to():
+    from guadal_cli.graph import NavGraph
+    from guadal_cli.maps.format import load_map
+
+    g = NavGraph(load_map(ROOT / "maps" / "urban_lake.json"))
+    a, b = g.node_at(12, 10), g.node_at(12, 20)
+    direct = g.shortest_path(a, b)
+    blocked = set(direct[1:-1])
+    detour = g.shortest_path(a, b, avoid=blocked)
+    assert detour and not blocked & set(detour)
+    assert g.distance(a, b) < sum(g.edge_length(p, q) for p, q in zip(detour, detour[1:]))
