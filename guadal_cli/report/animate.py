@@ -103,7 +103,12 @@ def animate(run: Run, out_dir: Path, fmt: str = "gif", max_frames: int = MAX_FRA
     images, trails, crosses, samples = [], [], [], []
     for k, column in enumerate(panels):
         ax = fig.add_subplot(1, len(panels), k + 1)
-        static = truth if column == "ground_truth" else run.fields.get(column) if replay is None or column not in first else first[column]
+        if column == "ground_truth":
+            static = truth
+        elif column in first:
+            static = first[column]  # the replayed model before any sample
+        else:
+            static = run.fields.get(column)  # no replay: the final field stays behind the vehicles
         vmin, vmax = shared_limits(run, column)
         if column in ("ground_truth", "mean") and vmin is None and truth is not None:
             vmin, vmax = float(np.nanmin(truth)), float(np.nanmax(truth))
