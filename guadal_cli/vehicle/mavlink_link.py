@@ -34,7 +34,7 @@ POSITION_TARGET_MASK = 0x0FF8
 RESULT_NAMES = {k: v.name.replace("MAV_RESULT_", "") for k, v in mavlink.enums["MAV_RESULT"].items()}
 COMMAND_NAMES = {k: v.name.replace("MAV_CMD_", "") for k, v in mavlink.enums["MAV_CMD"].items()}
 #: messages whose arrival the bridge reacts to, beyond keeping the state current
-EVENT_TYPES = {"COMMAND_ACK", "MISSION_ACK", "MISSION_ITEM_REACHED", "STATUSTEXT", "HEARTBEAT"}
+EVENT_TYPES = {"COMMAND_ACK", "MISSION_ACK", "MISSION_ITEM_REACHED", "STATUSTEXT"}
 
 
 def mode_name(number: int | None) -> str:

@@ -87,3 +87,22 @@ def test_goto_through_mavproxy(broker, lake, tmp_path):
         assert counters["command_failed"] == 0
     finally:
         s.close()
+
+
+def test_goto_through_the_embedded_broker(lake, tmp_path):
+    """Where Mosquitto is not installed the stack runs guadal's embedded broker: the bridge works with it too."""
+    from guadal_cli.fleet.broker import start_broker
+
+    broker = start_broker("embedded")
+    try:
+        s = Stack(broker, lake, tmp_path, home_node=lake[1].node_at(1, 1), speedup=20.0)
+        try:
+            g, p = s.graph, s.planner
+            seq = p.goto(g.node_at(3, 3), g)
+            p.wait_ack(seq, "reached", 20)
+            seq = p.send("measure", node=g.node_at(3, 3))
+            assert "no sensor" in p.wait_ack(seq, "failed", 5)["reason"]
+        finally:
+            s.close()
+    finally:
+        broker.stop()
