@@ -10,7 +10,9 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ..console import console, fail, print_json, print_mapping
 from ..errors import GuadalError
-from ..mission import json_schema, prepare
+
+# the library (numpy, scipy, networkx) is imported inside each command, so that `guadal --help`
+# and the commands that do not need it start at once
 
 
 def register(app: typer.Typer) -> None:
@@ -23,6 +25,7 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     ) -> None:
         """Run a mission and write its run directory."""
+        from ..mission import prepare
         from ..runner import MissionRunner
 
         try:
@@ -63,6 +66,8 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
     ) -> None:
         """Check a mission completely (schema, plugins, map, positions) without running it."""
+        from ..mission import prepare
+
         try:
             prep = prepare(mission)
         except GuadalError as exc:
@@ -82,4 +87,6 @@ def register(app: typer.Typer) -> None:
     @app.command("schema")
     def schema() -> None:
         """Print the JSON Schema of mission files (for editor completion and checks)."""
+        from ..mission import json_schema
+
         print_json(json_schema())
