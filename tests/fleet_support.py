@@ -52,7 +52,12 @@ class Inbox:
         return [m for m in self.messages if m.topic == topic]
 
     def close(self) -> None:
-        self.client.disconnect()
+        """A clean disconnect: DISCONNECT is on the wire before the network loop stops."""
+        gone = threading.Event()
+        self.client.on_disconnect = lambda *a: gone.set()
+        if self.client.is_connected():
+            self.client.disconnect()
+            gone.wait(5)
         self.client.loop_stop()
 
 

@@ -7,10 +7,10 @@ is the graph length of the hop, so ``distances`` agree with ``sim`` to the metre
 
 Reliability rests on the seq rule the bridges implement: a duplicate seq is answered again with
 the current state. So every outstanding command is simply sent again after a reconnect, when a
-vehicle comes back online, and every ``resend_interval`` seconds until answered; stale and
+vehicle comes back online, and every ``ping_interval`` seconds until answered; stale and
 duplicate answers are counted and ignored. Those re-sends also keep the bridges' comms-loss
-failsafe quiet; a vehicle with nothing outstanding gets a ``ping`` (with a fresh seq, so it can
-never make an outstanding command look stale). Anything unusable that arrives (bad JSON, unknown
+failsafe quiet; a vehicle with nothing outstanding gets a ``ping`` instead (with a fresh seq,
+so it can never make an outstanding command look stale). Anything unusable that arrives (bad JSON, unknown
 type, unknown vehicle) is logged, counted in :attr:`RemoteFleet.dropped` and never stops a
 mission. A vehicle that goes offline, enters failsafe or refuses a goto is *done*, with a
 sentence in :attr:`RemoteFleet.problems` saying why.
@@ -64,7 +64,7 @@ class RemoteConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     level: str
     host: str = Field(default="127.0.0.1", description="MQTT broker host name or address.")
-    port: int = Field(default=1883, ge=0, le=65535, description="MQTT broker port (8883 is usual with TLS).")
+    port: int = Field(default=1883, ge=1, le=65535, description="MQTT broker port (8883 is usual with TLS).")
     username: str | None = Field(default=None, description="Broker user name.")
     password: str | None = Field(default=None, description="Broker password (prefer password_env).")
     password_env: str | None = Field(default=None, description="Environment variable holding the broker password.")
@@ -80,8 +80,9 @@ class RemoteConfig(BaseModel):
     reset_timeout: float = Field(default=300.0, gt=0, description="Seconds for the vehicles to reach their start nodes.")
     hop_timeout: float = Field(default=60.0, gt=0, description="Seconds for one hop (one graph edge).")
     measure_timeout: float = Field(default=30.0, gt=0, description="Seconds for a measurement to come back.")
-    resend_interval: float = Field(default=2.0, gt=0, description="Seconds before an unanswered command is sent again.")
-    ping_interval: float = Field(default=1.0, gt=0, description="Seconds between keepalive pings to the bridges.")
+    ping_interval: float = Field(
+        default=1.0, gt=0, description="Seconds between messages to each bridge: its unanswered command again, or a ping."
+    )
 
     def broker_password(self) -> str | None:
         if self.password_env:
@@ -125,7 +126,6 @@ class RemoteVehicle:
     goto: Command | None = None
     measure: Command | None = None
     seq: int = 0
-    last_seq: int = 0
     t: float | None = None  # latest reading of the vehicle's clock (telemetry, acks, measurements)
     fix_t: float | None = None  # clock of the latest GPS fix
     t0: float | None = None  # the vehicle's clock at the end of reset
@@ -388,7 +388,7 @@ class RemoteFleet(Fleet):
         """
         cfg = self.config
         last_ping = {v.id: 0.0 for v in self.vehicles}
-        while not self._stop.wait(min(cfg.ping_interval, cfg.resend_interval) / 4):
+        while not self._stop.wait(cfg.ping_interval / 4):
             if not self._connected:
                 continue
             for v in self.vehicles:
@@ -396,7 +396,7 @@ class RemoteFleet(Fleet):
                     now = time.monotonic()
                     open_cmds = [c for c in (v.goto, v.measure) if c is not None and c.open]
                     for cmd in open_cmds:
-                        if now - cmd.sent_at >= min(cfg.resend_interval, cfg.ping_interval):
+                        if now - cmd.sent_at >= cfg.ping_interval:
                             self._send(v.id, cmd)
                     last = max([last_ping[v.id]] + [c.sent_at for c in (v.goto, v.measure) if c is not None])
                     if not open_cmds and now - last >= cfg.ping_interval:
@@ -624,7 +624,6 @@ class RealConfig(RemoteConfig):
     hop_timeout: float = 600.0
     reset_timeout: float = 1800.0
     connect_timeout: float = 60.0
-    resend_interval: float = 5.0
 
 
 def _fleet(config: RemoteConfig, graph, fleet_config, sensor, on_close=None) -> RemoteFleet:

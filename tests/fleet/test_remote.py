@@ -154,7 +154,7 @@ def test_bad_payloads_are_counted_and_the_mission_goes_on(graph, stack):
 
 def test_broker_restart_mid_mission_loses_no_command(graph, stack):
     start = auto_positions(graph, N)
-    fleet = make_fleet(graph, stack.broker_port, resend_interval=1.0)
+    fleet = make_fleet(graph, stack.broker_port)
     # distinct targets 20-30 m away: several hops each
     ring = [n for n in range(graph.n_nodes) if 20 <= graph.distance(start[1], n) <= 30 and n not in start]
     far = dict(enumerate(ring[:: max(1, len(ring) // N)][:N]))
