@@ -121,40 +121,26 @@ class Bridge:
     def _client_id(self) -> str:
         return f"guadal-bridge-{self.fleet.replace('/', '-')}-{self.vid}"
 
-    def _new_client(self, clean: bool) -> mqtt.Client:
+    def _make_client(self) -> mqtt.Client:
+        """A clean session each time: commands queued for an earlier run are never replayed to
+        the boat. What is published while the link is down is not lost either way: the planner
+        re-sends anything unanswered (duplicates are harmless), and this bridge re-subscribes
+        and re-publishes its status on every reconnect."""
         broker = parse_broker_url(self.config.broker)
         client = mqtt.Client(
-            mqtt.CallbackAPIVersion.VERSION2, client_id=self._client_id(), clean_session=clean,
+            mqtt.CallbackAPIVersion.VERSION2, client_id=self._client_id(), clean_session=True,
             protocol=mqtt.MQTTv311,
         )
         if broker["username"]:
             client.username_pw_set(broker["username"], broker["password"])
         if broker["tls"]:
             client.tls_set(ca_certs=self.config.tls_ca)
-        return client
-
-    def _make_client(self) -> mqtt.Client:
-        client = self._new_client(clean=False)
         client.will_set(self._topic("status"), messages.encode("status", state="offline", vehicle=self.vid), qos=1, retain=True)
         client.reconnect_delay_set(min_delay=0.2, max_delay=5)
         client.on_connect = self._on_connect
         client.on_disconnect = self._on_disconnect
         client.on_message = lambda c, u, msg: self.events.put(("mqtt", msg.topic, msg.payload))
         return client
-
-    def _forget_old_session(self) -> None:
-        """Drop what the broker queued for an earlier run of this bridge (old, unanswerable commands).
-
-        The session the bridge then opens is persistent, so commands sent while the link is briefly
-        down reach it after the reconnect.
-        """
-        broker = parse_broker_url(self.config.broker)
-        client = self._new_client(clean=True)
-        try:
-            client.connect(broker["host"], broker["port"], keepalive=5)
-            client.disconnect()
-        except OSError as exc:
-            log.warning("broker %s not reachable yet (%s); will keep trying", self.config.broker, exc)
 
     def _on_connect(self, client, userdata, flags, reason_code, properties) -> None:
         if reason_code.is_failure:
@@ -615,7 +601,6 @@ class Bridge:
         if self.sensor is not None:
             worker.start()
         broker = parse_broker_url(self.config.broker)
-        self._forget_old_session()
         self.mqtt.connect_async(broker["host"], broker["port"], keepalive=10)
         self.mqtt.loop_start()
         try:
