@@ -84,3 +84,27 @@ def test_sigterm_while_waiting_for_the_autopilot_exits_quietly(lake, tmp_path):
                 proc.kill()
                 proc.wait()
     assert "Traceback" not in log.read_text() and "error" not in log.read_text().lower()
+
+
+def test_config_file_paths_are_relative_to_the_file_and_options_win(tmp_path):
+    from pathlib import Path
+
+    from guadal_cli.vehicle.config import load_config, parse_broker_url
+
+    deploy = tmp_path / "deploy"
+    deploy.mkdir()
+    (deploy / "bridge.yaml").write_text(
+        "vehicle_id: 2\nmavlink: /dev/serial0\nmap: lake.json\nsensor: {type: synthetic, path: truth.csv}\n"
+        "broker: mqtts://boat2:s%40cret@broker.example.org\nfailsafe_timeout: 20\n"
+    )
+    config = load_config(deploy / "bridge.yaml", {"failsafe_timeout": 5.0, "vehicle_id": None})
+    assert config.map_path() == deploy / "lake.json"
+    assert config.sensor_base_dir == deploy
+    assert (config.vehicle_id, config.failsafe_timeout) == (2, 5.0)
+    assert parse_broker_url(config.broker) == {
+        "host": "broker.example.org", "port": 8883, "tls": True, "username": "boat2", "password": "s@cret",
+    }
+    # a sensor given on the command line is relative to where it was typed, not to the file
+    config = load_config(deploy / "bridge.yaml", {"sensor": "synthetic:here.csv"})
+    assert config.sensor_base_dir is None and config.map_path() == deploy / "lake.json"
+    assert load_config(None, {"vehicle_id": 0, "mavlink": "tcp:h:1", "map": "m.json"}).map_path() == Path("m.json")
