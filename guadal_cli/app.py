@@ -7,6 +7,7 @@ from typing import Optional
 import typer
 
 from . import __version__
+from .commands import discretize as discretize_cmd
 from .commands import bridge as bridge_cmd
 from .commands import map as map_cmd
 from .commands import mission as mission_cmd
@@ -43,6 +44,7 @@ map_cmd.register(app)
 sitl_cmd.register(app)
 bridge_cmd.register(app)
 stack_cmd.register(app)
+discretize_cmd.register(app)
 report_cmd.register(app)
 
 

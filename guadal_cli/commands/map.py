@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Optional
 
 import typer
 
-from ..console import fail, print_mapping
+from ..console import console, fail, print_mapping
 from ..errors import GuadalError
-from ..maps.format import load_map
 
 map_app = typer.Typer(help="Inspect guadal map files.", no_args_is_help=True)
 
@@ -19,11 +19,32 @@ def info(
     as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
 ) -> None:
     """Grid shape, water nodes, cell size, water area and lat/lon bounds."""
+    from ..maps.format import load_map
+
     try:
         summary = load_map(path).summary()
     except GuadalError as exc:
         raise fail(exc)
     print_mapping(f"map {path}", summary, as_json=as_json)
+
+
+@map_app.command("show")
+def show(
+    path: Path = typer.Argument(..., help="A guadal map file."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="PNG to write (default: the map's name with .png)."),
+) -> None:
+    """Write a PNG preview of a map: water cells, cell outlines and node centres on lat/lon axes."""
+    from ..maps.format import load_map
+    from ..maps.preview import preview_map
+
+    target = output or path.with_suffix(".png")
+    try:
+        if target.resolve() == path.resolve():
+            raise GuadalError("--output names the map file itself; give the preview a .png name.")
+        preview_map(load_map(path), target)
+    except GuadalError as exc:
+        raise fail(exc)
+    console.print(f"preview: {target}")
 
 
 def register(app: typer.Typer) -> None:

@@ -1,0 +1,108 @@
+"""PNG previews: a map's water cells, drawn over the source they came from when there is one.
+
+Axes are longitude and latitude, with the aspect that makes metres square at the map's latitude.
+Figures are drawn with the Agg canvas directly (no global backend switch) and written to a
+temporary file first, so a failed drawing never leaves half a PNG.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+from matplotlib.colors import ListedColormap
+from matplotlib.figure import Figure
+
+from ..errors import GuadalError
+from .format import Map
+
+_WATER = ListedColormap(["#00000000", "#1f9bd6"])
+_GRID_LINES_UP_TO = 150  # cells per side; beyond, lines would hide the water
+
+
+def _corners(centres: np.ndarray) -> np.ndarray:
+    padded = np.pad(centres, 1, mode="reflect", reflect_type="odd")
+    return 0.25 * (padded[:-1, :-1] + padded[1:, :-1] + padded[:-1, 1:] + padded[1:, 1:])
+
+
+def _cell_edges(map_: Map) -> tuple[np.ndarray, np.ndarray]:
+    """Lon/lat of cell corners, (rows+1, cols+1), for square grids and coordinate grids alike."""
+    if map_.latlon_grid is not None and min(map_.shape) >= 2:
+        return _corners(map_.lon), _corners(map_.lat)
+    rows, cols = map_.shape
+    half = map_.cell_size_m / 2
+    cc, rr = np.meshgrid(np.arange(cols + 1), np.arange(rows + 1))
+    x = (cc - map_.reference["col"]) * map_.cell_size_m - half
+    y = -(rr - map_.reference["row"]) * map_.cell_size_m + half
+    lat, lon = map_.projection.to_latlon(x, y)
+    return lon, lat
+
+
+def _draw_map(ax, map_: Map, alpha: float) -> None:
+    lon_e, lat_e = _cell_edges(map_)
+    rows, cols = map_.shape
+    dense = max(rows, cols) <= _GRID_LINES_UP_TO
+    ax.pcolormesh(
+        lon_e, lat_e, map_.mask.astype(float), cmap=_WATER, vmin=0, vmax=1, alpha=alpha,
+        edgecolors="#0b3954" if dense else "face", linewidth=0.3 if dense else 0,
+    )
+    if map_.water_nodes <= 4000:
+        ax.plot(map_.lon[map_.mask], map_.lat[map_.mask], ".", color="#0b3954", markersize=1.5)
+
+
+def _finish(fig: Figure, ax, map_: Map, title: str, path: Path) -> None:
+    lat0 = float(map_.reference["lat"])
+    ax.set_aspect(1 / max(math.cos(math.radians(lat0)), 1e-6))
+    ax.set_xlabel("longitude (°)")
+    ax.set_ylabel("latitude (°)")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(axis="x", labelrotation=30)
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    write_figure(fig, path)
+
+
+def write_figure(fig: Figure, path: Path) -> None:
+    """Save ``fig`` as PNG at ``path`` atomically."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise GuadalError(f"cannot write preview '{path}': folder '{path.parent}' does not exist.")
+    FigureCanvasAgg(fig)
+    tmp = path.with_name(path.name + ".partial")
+    try:
+        fig.savefig(tmp, format="png", dpi=130)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _title(map_: Map) -> str:
+    s = map_.summary()
+    return (f"{s['name'] or 'map'}: {s['shape'][0]}x{s['shape'][1]} cells of {s['cell_size_m']:g} m, "
+            f"{s['water_nodes']} water nodes, {s['area_m2']:,.0f} m²")
+
+
+def preview_discretized(result, path: Path) -> None:
+    """The new grid's water cells over the source image, mask or outline."""
+    fig = Figure(figsize=(7, 6))
+    ax = fig.add_subplot()
+    result.source.draw(ax)
+    _draw_map(ax, result.map, alpha=0.45)
+    lon_e, lat_e = _cell_edges(result.map)
+    ax.set_xlim(lon_e.min(), lon_e.max())
+    ax.set_ylim(lat_e.min(), lat_e.max())
+    _finish(fig, ax, result.map, _title(result.map) + f"\nover {result.source.path.name}", path)
+
+
+def preview_map(map_: Map, path: Path) -> None:
+    """Any guadal map on its own: water cells, cell outlines, node centres."""
+    fig = Figure(figsize=(7, 6))
+    ax = fig.add_subplot()
+    ax.set_facecolor("#ebe6d7")
+    _draw_map(ax, map_, alpha=1.0)
+    _finish(fig, ax, map_, _title(map_), path)
