@@ -360,7 +360,8 @@ class Bridge:
 
     def enter_hold(self, state: str = "hold") -> None:
         if self.goal is not None and self.goal.active:
-            self.goal.status, self.goal.reason = "failed", f"interrupted: vehicle put in HOLD ({state})."
+            why = f"the failsafe ({self.failsafe_reason})" if state == "failsafe" else "a hold command"
+            self.goal.status, self.goal.reason = "failed", f"interrupted by {why}; vehicle in HOLD."
             self._ack_goal(self.goal)
         self.state = state
         self.request_mode(MODE_HOLD)

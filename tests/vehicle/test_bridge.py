@@ -195,7 +195,7 @@ def test_hold_stops_the_boat_and_the_next_goto_resumes(shared, planner):
     planner.wait_ack(seq, "accepted", 5)
     hold = planner.send("hold")
     planner.wait_ack(hold, "accepted", 5)
-    assert planner.wait_ack(seq, "failed", 5)["reason"].startswith("interrupted")
+    assert planner.wait_ack(seq, "failed", 5)["reason"] == "interrupted by a hold command; vehicle in HOLD."
     shared.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "no HOLD after the hold command")
     planner.wait_status(lambda st: st["state"] == "hold", 5, "status does not say hold")
     # a planner that ends cleanly (hold, then offline) is not a comms loss: no failsafe
@@ -280,7 +280,7 @@ def test_failsafe_holds_on_silence_and_on_the_planners_last_will(broker, lake, t
         status = p.wait_status(lambda st: st["state"] == "failsafe", 8, "no failsafe after planner silence")
         assert "no planner message" in status["failsafe_reason"]
         s.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "the emulator is not in HOLD after the failsafe")
-        assert p.acks(seq, "failed"), "the interrupted goto was not reported"
+        assert "interrupted by the failsafe (no planner message" in p.acks(seq, "failed")[-1]["reason"]
 
         # the next goto resumes: GUIDED again, and it gets there (the planner is alive again: it pings)
         seq = p.goto(target, g)
