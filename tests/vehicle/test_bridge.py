@@ -270,7 +270,7 @@ PLANNER_WITH_WILL = textwrap.dedent(
 
 def test_failsafe_holds_on_silence_and_on_the_planners_last_will(broker, lake, tmp_path):
     s = Stack(broker, lake, tmp_path, home_node=lake[1].node_at(5, 1), speedup=10.0,
-              bridge_args=["--failsafe-timeout", "1.5"])
+              bridge_args=["--failsafe-timeout", "2.5"])
     try:
         g, p = s.graph, s.planner
         target = g.node_at(5, 7)  # far enough that the boat is still driving when the planner falls silent
