@@ -6,6 +6,7 @@ One stack serves the module (starting one costs seconds); the test that stops a 
 from __future__ import annotations
 
 import json
+import signal
 import threading
 
 import pytest
@@ -80,6 +81,41 @@ def test_hops_move_the_boats_and_count_graph_metres(graph, stack):
         assert set(track[0]) == {"vehicle", "lat", "lon", "time_s"} and track[0]["time_s"] >= 0
         # a re-sent command may be answered twice (stale/duplicate); nothing else may be dropped
         assert set(fleet.dropped) <= {"stale", "duplicate"}
+    finally:
+        fleet.close()
+
+
+def test_reset_sails_to_the_start_nodes_without_counting_it(graph, stack):
+    homes = auto_positions(graph, N)
+    elsewhere = [n for n in range(graph.n_nodes) if 12 <= graph.distance(homes[0], n) <= 20][:: 7][:N]
+    fleet = make_fleet(graph, stack.broker_port)
+    try:
+        fleet.reset(elsewhere)
+        assert fleet.positions == dict(enumerate(elsewhere)) and fleet.distances == {0: 0.0, 1: 0.0, 2: 0.0}
+        for v, node in enumerate(elsewhere):  # the boats are really there: where they said they arrived
+            arrival = fleet.vehicles[v].goto.reply
+            x, y = graph.map.projection.to_xy(arrival["lat"], arrival["lon"])
+            assert abs(float(x) - graph.x[node]) < 3 and abs(float(y) - graph.y[node]) < 3
+        fleet.reset(homes)  # and back, for the next tests
+        assert fleet.positions == dict(enumerate(homes)) and fleet.distances == {0: 0.0, 1: 0.0, 2: 0.0}
+    finally:
+        fleet.close()
+
+
+def test_a_silent_vehicle_makes_the_hop_time_out_with_a_sentence(graph, stack):
+    start = auto_positions(graph, N)
+    fleet = make_fleet(graph, stack.broker_port, hop_timeout=1.0)
+    bridge = next(p for p in stack.processes if p.name == "bridge-1")
+    try:
+        fleet.reset(start)
+        target = next(n for n in graph.neighbors(start[1]) if n not in start)
+        bridge.signal(signal.SIGSTOP)  # frozen: connected, but answers nothing
+        try:
+            with pytest.raises(GuadalError, match=rf"vehicle 1 did not reach node {target} within 1 s "
+                                                  r"\(goto seq \d+ never acknowledged, last fix [\d.]+ m from it\)"):
+                fleet.move({1: target})
+        finally:
+            bridge.signal(signal.SIGCONT)
     finally:
         fleet.close()
 
