@@ -18,6 +18,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -152,7 +153,7 @@ class Stack:
     def launch(
         cls, *, map_path: str | Path, vehicles: int, homes: list[tuple[float, float]], speedup: float = 50.0,
         fleet: str = "guadal", broker_kind: str = "auto", broker_port: int = 0, failsafe_timeout: float = 30.0,
-        emulator_args: list[str] = (), bridge_args: list[str] = (), timeout: float = 60.0,
+        emulator_args: Sequence[str] = (), bridge_args: Sequence[str] = (), timeout: float = 60.0,
         state_dir: Path | None = None, detach: bool = False,
     ) -> "Stack":
         """Start broker, emulator and bridges; return when every bridge is online."""
@@ -204,7 +205,7 @@ class Stack:
             for i, endpoint in enumerate(endpoints):
                 self._spawn(f"bridge-{i}", _guadal(
                     "bridge", "--vehicle-id", str(i), "--mavlink", endpoint, "--broker", broker.url,
-                    "--map", str(map_path), "--fleet", fleet, "--arm", "--failsafe-timeout", f"{failsafe_timeout:g}",
+                    "--map", self.info["map"], "--fleet", fleet, "--arm", "--failsafe-timeout", f"{failsafe_timeout:g}",
                     *bridge_args), detach)
             watcher.wait_all_online(deadline, self.processes)
         finally:
