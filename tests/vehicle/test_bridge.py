@@ -269,11 +269,12 @@ PLANNER_WITH_WILL = textwrap.dedent(
 
 
 def test_failsafe_holds_on_silence_and_on_the_planners_last_will(broker, lake, tmp_path):
-    s = Stack(broker, lake, tmp_path, home_node=lake[1].node_at(5, 1), speedup=10.0,
+    # a slow boat (5 m/s of wall time), so it is still driving when the planner falls silent
+    s = Stack(broker, lake, tmp_path, home_node=lake[1].node_at(5, 1), speedup=10.0, max_speed=0.5,
               bridge_args=["--failsafe-timeout", "2.5"])
     try:
         g, p = s.graph, s.planner
-        target = g.node_at(5, 7)  # far enough that the boat is still driving when the planner falls silent
+        target = g.node_at(5, 7)  # 30 m away: 6 s
         seq = p.goto(target, g)
         p.wait_ack(seq, "accepted", 5)
         s.emulator.heartbeat(lambda hb: hb.custom_mode == GUIDED, 5, "the emulator never entered GUIDED")
@@ -283,6 +284,7 @@ def test_failsafe_holds_on_silence_and_on_the_planners_last_will(broker, lake, t
         assert "interrupted by the failsafe (no planner message" in p.acks(seq, "failed")[-1]["reason"]
 
         # the next goto resumes: GUIDED again, and it gets there (the planner is alive again: it pings)
+        target = g.node_at(5, 3)  # near where it stopped
         seq = p.goto(target, g)
         p.keep_alive(0.3)
         p.wait_ack(seq, "accepted", 5)

@@ -156,12 +156,12 @@ class Stack:
 
     def __init__(self, broker, lake, tmp_path: Path, home_node: int, bridge_args=(), serial=False, speedup=40.0,
                  fleet=None, route=None, start_planner_online=True, telemetry_hz=10, before_bridge=None,
-                 wait_armed=True):
+                 wait_armed=True, max_speed=2.0):
         self.map, self.graph, self.map_path = lake
         self.broker = broker
         self.fleet = fleet or f"t{uuid.uuid4().hex[:8]}"
         home = (float(self.graph.lat[home_node]), float(self.graph.lon[home_node]))
-        self.emulator = Emulator(home, speedup=speedup, serial=serial)
+        self.emulator = Emulator(home, speedup=speedup, serial=serial, max_speed=max_speed)
         self.planner = Planner(broker, self.fleet)
         if start_planner_online:
             self.planner.client.publish(messages.topic(self.fleet, None, "status"),
