@@ -123,6 +123,11 @@ def _guadal(*args: str) -> list[str]:
     return [sys.executable, "-m", "guadal_cli", *args]
 
 
+def _emulator(*args: str) -> list[str]:
+    """``guadal sitl`` without loading the rest of the CLI: it starts faster."""
+    return [sys.executable, "-m", "guadal_cli.sitl", *args]
+
+
 class Stack:
     """A running (or recorded) sitl stack."""
 
@@ -193,8 +198,8 @@ class Stack:
         self.info["broker"] = {"kind": broker.kind, "host": broker.host, "port": broker.port, "url": broker.url}
 
         fmt = lambda h: f"{h[0]:.8f},{h[1]:.8f}"  # noqa: E731
-        emulator = self._spawn("emulator", _guadal(
-            "sitl", "--vehicles", str(vehicles), "--home", fmt(homes[0]), "--homes", ";".join(map(fmt, homes)),
+        emulator = self._spawn("emulator", _emulator(
+            "--vehicles", str(vehicles), "--home", fmt(homes[0]), "--homes", ";".join(map(fmt, homes)),
             "--speedup", f"{speedup:g}", "--base-port", "0", *emulator_args), detach)
         ready = _wait_ready_line(emulator, deadline)
         endpoints = mavlink_endpoints(ready, vehicles)
