@@ -28,10 +28,10 @@ def register(app: typer.Typer) -> None:
         ),
         bounds: Optional[str] = typer.Option(None, "--bounds", help="Image corners: north,south,east,west in degrees."),
         water_color: Optional[str] = typer.Option(None, "--water-color", help="Water's colour, R,G,B (0-255) or #RRGGBB."),
-        tolerance: float = typer.Option(40.0, "--tolerance", help="Largest RGB distance from --water-color that is still water."),
+        tolerance: Optional[float] = typer.Option(None, "--tolerance", help="Largest RGB distance from --water-color that is still water (default 40)."),
         threshold: Optional[str] = typer.Option(None, "--threshold", help="Water rule CHANNEL OP VALUE, e.g. 'blue>120', 'index>0.2' (channels: red green blue gray index)."),
         invert: bool = typer.Option(False, "--invert", help="Swap water and land of the image rule (e.g. black = water masks)."),
-        water_value: float = typer.Option(1.0, "--water-value", help="Grid masks: the value that means water (0 for inverted files)."),
+        water_value: Optional[float] = typer.Option(None, "--water-value", help="Grid masks: the value that means water (default 1; 0 for inverted files)."),
         latlon_grid: Optional[Path] = typer.Option(None, "--latlon-grid", help="Grid masks: \"lat,lon\" per cell centre or corner, ';'-separated."),
         min_fraction: float = typer.Option(0.5, "--min-fraction", help="A cell is water when at least this fraction of its area is water."),
         largest_body: bool = typer.Option(False, "--largest-body", help="Keep only the largest connected body of water."),
@@ -55,7 +55,9 @@ def register(app: typer.Typer) -> None:
             image_options = tuple(
                 flag for flag, given in (("--water-color", water_color), ("--threshold", threshold), ("--invert", invert)) if given
             )
-            rule = WaterRule.from_options(water_color, tolerance, threshold, invert)
+            if tolerance is not None and not water_color:
+                raise GuadalError("--tolerance goes with --water-color (the largest RGB distance from that colour).")
+            rule = WaterRule.from_options(water_color, 40.0 if tolerance is None else tolerance, threshold, invert)
             src = open_source(
                 source, bounds=bounds, rule=rule, water_value=water_value, latlon_grid=latlon_grid,
                 image_only_options=image_options,

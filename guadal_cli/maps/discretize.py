@@ -86,8 +86,9 @@ def _grid_for(source, cell: float) -> tuple[int, int, dict]:
     centre = LocalProjection(*wb.centre)
     x_w, y_n = centre.to_xy(wb.north, wb.west)
     x_e, y_s = centre.to_xy(wb.south, wb.east)
-    cols = int(math.ceil(float(x_e - x_w) / cell - 1e-9)) + 2
-    rows = int(math.ceil(float(y_n - y_s) / cell - 1e-9)) + 2
+    # a span a hair over a whole number of cells (rounding in the georeference) adds no column
+    cols = int(math.ceil(float(x_e - x_w) / cell - 1e-3)) + 2
+    rows = int(math.ceil(float(y_n - y_s) / cell - 1e-3)) + 2
     if rows * cols > MAX_CELLS:
         raise GuadalError(
             f"a cell size of {cell:g} m over {float(x_e - x_w):.0f} x {float(y_n - y_s):.0f} m of water makes a "
@@ -158,8 +159,8 @@ def discretize(source, options: DiscretizeOptions, name: str = "", description: 
     water_m2 = float(source.water_area_m2)
     if water_m2 < cell**2:
         raise GuadalError(
-            f"the cell size ({cell:g} m, {cell**2:g} m² per cell) is larger than the lake: '{source.path.name}' "
-            f"holds {water_m2:.0f} m² of water; choose a smaller --cell-size."
+            f"the cell size ({cell:g} m, {cell**2:,.0f} m² per cell) is larger than the lake: '{source.path.name}' "
+            f"holds {water_m2:,.0f} m² of water; choose a smaller --cell-size."
         )
     rows, cols, reference = _grid_for(source, cell)
     notes = []

@@ -347,6 +347,8 @@ def read_outline(path: Path) -> list[list[np.ndarray]]:
     except json.JSONDecodeError as exc:
         raise GuadalError(f"cannot read outline '{path.name}': not valid JSON ({exc.msg} at line {exc.lineno}).") from exc
     where = f"outline '{path.name}'"
+    if isinstance(data, dict) and data.get("format") == "guadal-map":
+        raise GuadalError(f"'{path.name}' is a guadal map already: 'guadal map info' and 'guadal map show' read it.")
     polygons: list[list[np.ndarray]] = []
 
     def visit(obj) -> None:
@@ -383,7 +385,7 @@ def open_source(
     *,
     bounds: str | None = None,
     rule: WaterRule | None = None,
-    water_value: float = 1.0,
+    water_value: float | None = None,
     latlon_grid: Path | None = None,
     image_only_options: tuple[str, ...] = (),
 ) -> RasterSource | CoordinateGridSource | OutlineSource:
@@ -397,10 +399,12 @@ def open_source(
     if kind is None:
         allowed = ", ".join(s for suffixes in kinds.values() for s in suffixes)
         raise GuadalError(f"cannot read '{path.name}': unknown kind of file '{suffix}' (allowed: {allowed}).")
+    a_kind = {"image": "an image", "grid mask": "a grid mask", "outline": "an outline"}[kind]
     if kind != "image" and image_only_options:
-        raise GuadalError(f"{', '.join(image_only_options)} apply to images only, and '{path.name}' is a {kind}.")
-    if kind != "grid mask" and latlon_grid is not None:
-        raise GuadalError(f"--latlon-grid applies to grid masks (.csv, .txt) only, and '{path.name}' is a {kind}.")
+        raise GuadalError(f"{', '.join(image_only_options)} apply to images only, and '{path.name}' is {a_kind}.")
+    for flag, given in (("--latlon-grid", latlon_grid is not None), ("--water-value", water_value is not None)):
+        if kind != "grid mask" and given:
+            raise GuadalError(f"{flag} applies to grid masks (.csv, .txt) only, and '{path.name}' is {a_kind}.")
     parsed_bounds = Bounds.parse(bounds) if bounds is not None else None
 
     if kind == "image":
@@ -409,7 +413,7 @@ def open_source(
         if parsed_bounds is not None:
             raise GuadalError(f"--bounds does not apply to outlines: '{path.name}' carries its own lon/lat coordinates.")
         return OutlineSource(path, read_outline(path))
-    return _open_grid(path, parsed_bounds, water_value, latlon_grid)
+    return _open_grid(path, parsed_bounds, 1.0 if water_value is None else water_value, latlon_grid)
 
 
 def _open_image(path: Path, bounds: Bounds | None, rule: WaterRule) -> RasterSource:
