@@ -28,7 +28,7 @@ MANUAL, HOLD, GUIDED = 0, 4, 15
 @pytest.fixture(scope="module")
 def own_broker():
     """This module's broker: one test restarts it."""
-    holder = {"broker": start_broker("mosquitto")}
+    holder = {"broker": start_broker("auto")}
     yield holder
     holder["broker"].stop()
 
@@ -229,7 +229,7 @@ def test_a_pilot_taking_over_ends_the_goto_and_is_not_overruled(shared, planner)
 def test_bridge_comes_back_after_a_broker_restart(shared, own_broker, planner):
     old = own_broker["broker"]
     old.kill()
-    own_broker["broker"] = start_broker("mosquitto", port=old.port)
+    own_broker["broker"] = start_broker(old.kind, port=old.port)
     # a new broker knows nothing: the bridge must subscribe again and re-publish its retained status
     planner.close()
     shared.planner = fresh = Planner(own_broker["broker"], shared.fleet)
