@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from fleet_support import processes_marked
 from guadal_cli.mission import prepare
 from guadal_cli.runner import MissionRunner
 from support import ROOT
@@ -27,22 +28,6 @@ def distances(run: Path) -> list[list[float]]:
     with open(run / "metrics.csv") as f:
         rows = list(csv.DictReader(f))
     return [[round(float(r[f"distance_v{i}"]), 6) for i in range(3)] for r in rows]
-
-
-def processes_marked(mark: str) -> list[int]:
-    """Pids of live processes whose environment carries ``mark`` (children inherit it)."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            if mark.encode() in (entry / "environ").read_bytes():
-                stat = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-                if stat[0] != "Z":
-                    found.append(int(entry.name))
-        except OSError:
-            continue
-    return found
 
 
 @pytest.mark.parametrize("name, broker", [("lake_greedy", "mosquitto"), ("lake_expected_improvement", "embedded")])

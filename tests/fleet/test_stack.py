@@ -3,14 +3,20 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import uuid
 from pathlib import Path
 
+import yaml
 from typer.testing import CliRunner
 
-from fleet_support import Inbox
+from fleet_support import Inbox, processes_marked, wait_for
 from guadal_cli.app import app
 from guadal_cli.fleet import messages as msg
-from support import LAKE, run_cli
+from support import LAKE, ROOT, run_cli
 
 
 def cli(*args):
@@ -61,3 +67,25 @@ def test_stack_up_with_a_missing_map_is_one_sentence(tmp_path):
     assert result.exit_code == 2 and result.exception.__class__ is SystemExit
     assert "nope.json' does not exist" in result.output
     assert not (tmp_path / "stack.json").exists()
+
+
+def test_a_killed_run_takes_its_launched_stack_down(tmp_path):
+    """kill -9 of `guadal run` leaves no broker, emulator or bridge behind."""
+    mission = yaml.safe_load((ROOT / "missions" / "lake_greedy_sitl.yaml").read_text())
+    mission["map"] = str(LAKE)
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(mission))
+    token = uuid.uuid4().hex  # inherited by every process the run starts
+    mark = f"GUADAL_TEST_MARK={token}"
+    run = subprocess.Popen([sys.executable, "-m", "guadal_cli", "run", str(path), "-o", str(tmp_path / "run"), "-q"],
+                           env={**os.environ, "GUADAL_TEST_MARK": token},
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        # mid-mission: steps are being recorded
+        wait_for(lambda: (tmp_path / "run" / "metrics.csv").is_file()
+                 and len((tmp_path / "run" / "metrics.csv").read_text().splitlines()) > 2, 60, "the mission did not start")
+        assert len(processes_marked(mark)) >= 6  # the run, broker, emulator, three bridges
+    finally:
+        run.send_signal(signal.SIGKILL)
+        run.wait(10)
+    wait_for(lambda: processes_marked(mark) == [], 20, "processes of the killed run's stack are still alive")
