@@ -10,7 +10,6 @@ SITL demo on a machine without Mosquitto. Run it alone with
 from __future__ import annotations
 
 import argparse
-import getpass
 import os
 import shutil
 import signal
@@ -132,6 +131,17 @@ def wait_until_listening(host: str, port: int, process: subprocess.Popen, timeou
     raise GuadalError(f"the {what} did not listen on {host}:{port} within {timeout:g} s.")
 
 
+def _same_user() -> str:
+    """Mosquitto started by root switches to its own user, which also cancels "die with the
+    parent"; tell it to stay who started it."""
+    try:
+        import pwd
+
+        return f"user {pwd.getpwuid(os.getuid()).pw_name}\n"
+    except (ImportError, KeyError, OSError):
+        return ""
+
+
 def start_broker(
     kind: str = "auto",
     host: str = "127.0.0.1",
@@ -158,9 +168,8 @@ def start_broker(
     log_path = wd / f"broker-{port}.log"
     if chosen == "mosquitto":
         conf = wd / f"mosquitto-{port}.conf"
-        # run as whoever started it: a switch of user would also cancel "die with the parent"
         conf.write_text(
-            f"user {getpass.getuser()}\nlistener {port} {host}\nallow_anonymous true\npersistence false\n"
+            f"{_same_user()}listener {port} {host}\nallow_anonymous true\npersistence false\n"
             # small MQTT packets must not wait for Nagle's algorithm (40 ms per hop otherwise)
             f"set_tcp_nodelay true\nmax_packet_size 65536\nlog_dest stderr\nlog_type error\nlog_type warning\n"
         )
