@@ -8,6 +8,7 @@ from collections.abc import Sequence
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from .errors import GuadalError
@@ -18,7 +19,7 @@ err_console = Console(stderr=True, highlight=False)
 
 def fail(exc: GuadalError | str) -> typer.Exit:
     """Print one error sentence (no traceback) and return the exit to raise."""
-    err_console.print(f"[bold red]error:[/] {exc}", soft_wrap=True)
+    err_console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
     return typer.Exit(getattr(exc, "exit_code", 2))
 
 

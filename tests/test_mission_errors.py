@@ -81,3 +81,10 @@ def test_missing_mission_file_from_a_real_process(tmp_path):
     proc = run_cli("run", tmp_path / "absent.yaml")
     assert proc.returncode == 2
     assert "mission file does not exist" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_error_sentences_keep_their_square_brackets(write_mission):
+    mission = base_mission()
+    mission["fleet"]["initial_positions"] = [{"row": 0, "col": 0}, 5, 6]
+    result = CliRunner().invoke(app, ["validate", str(write_mission(mission))])
+    assert "fleet.initial_positions[0]" in result.output
