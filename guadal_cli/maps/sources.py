@@ -118,6 +118,8 @@ class CoordinateGridSource:
             np.column_stack([kx[-1, -2::-1], ky[-1, -2::-1]]), np.column_stack([kx[-2:0:-1, 0], ky[-2:0:-1, 0]]),
         ])
         self._outline = PolyPath(ring)
+        self._edge_cell = np.zeros(self.water.shape, dtype=bool)
+        self._edge_cell[[0, -1], :] = self._edge_cell[:, [0, -1]] = True
         # true size of each cell, from its corners
         ex = np.hypot(np.diff(kx, axis=1), np.diff(ky, axis=1))  # (R+1, C) edges along rows
         ey = np.hypot(np.diff(kx, axis=0), np.diff(ky, axis=0))  # (R, C+1) edges along columns
@@ -149,15 +151,19 @@ class CoordinateGridSource:
         return Bounds(float(lat.max()), float(lat.min()), float(lon.max()), float(lon.min()))
 
     def water_on_lattice(self, lats: np.ndarray, lons: np.ndarray) -> np.ndarray:
-        # nearest cell centre decides; points outside the grid's outline are land
+        """The nearest cell centre decides; points beyond the grid's outline are land.
+
+        Only points nearest to an edge cell can lie outside the grid, so only those are tested
+        against the outline (a polygon test on every point would cost points x edge cells).
+        """
         lat, lon = np.meshgrid(lats, lons, indexing="ij")
         x, y = self.projection.to_xy(lat.ravel(), lon.ravel())
         points = np.column_stack([x, y])
-        inside = self._outline.contains_points(points)
-        out = np.zeros(points.shape[0], dtype=bool)
-        if inside.any():
-            _, idx = self._tree.query(points[inside])
-            out[inside] = self.water.ravel()[idx]
+        _, idx = self._tree.query(points)
+        out = self.water.ravel()[idx]
+        near_edge = self._edge_cell.ravel()[idx] & out
+        if near_edge.any():
+            out[near_edge] = self._outline.contains_points(points[near_edge])
         return out.reshape(len(lats), len(lons))
 
     def draw(self, ax) -> None:

@@ -15,8 +15,9 @@ EXAMPLE_BOUNDS = "37.4200,37.4164,-5.9780,-5.9830"
 
 def test_readme_path_from_satellite_picture_to_a_mission_run(tmp_path):
     out = tmp_path / "example_satellite.json"
+    # the README's command, with --json for this test to read
     made = run_cli("discretize", EXAMPLE, "--bounds", EXAMPLE_BOUNDS, "--cell-size", "10", "--largest-body",
-                   "--name", "example_satellite", "--output", out, "--json")
+                   "--output", out, "--json")
     assert made.returncode == 0, made.stderr
     summary = json.loads(made.stdout)
     assert summary["bodies"] == 1 and summary["water_nodes"] > 300

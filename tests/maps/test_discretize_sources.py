@@ -53,6 +53,15 @@ def test_inverted_csv_with_coordinate_grid_of_non_square_cells(tmp_path, role, s
     assert abs(north - (edges["north"] - cell / 2)) <= cell / 2 + 1e-3
 
 
+def test_water_up_to_the_coordinate_grid_edge_stops_there(tmp_path):
+    mask_path, grid_path = tmp_path / "all.csv", tmp_path / "grid.txt"
+    _, _, klat, klon, inside = draw_grid(mask_path, lambda x, y: x == x, dx=6.0, dy=3.0, half_w=30, half_h=30)
+    write_latlon_grid(grid_path, klat, klon)
+    m = discretize(open_source(mask_path, latlon_grid=grid_path), DiscretizeOptions(cell_size_m=2.0)).map
+    assert inside.all()
+    assert m.summary()["area_m2"] == pytest.approx(60 * 60, abs=1.0)  # the 60 x 60 m grid, not the cells beyond it
+
+
 def test_whitespace_delimited_mask_with_bounds(tmp_path):
     path = tmp_path / "lake.txt"
     draw_grid(path, disc(40.0), dx=2.0, dy=2.0, half_w=50, half_h=50, delimiter=" ")
