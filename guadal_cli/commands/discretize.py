@@ -36,7 +36,7 @@ def register(app: typer.Typer) -> None:
         min_fraction: float = typer.Option(0.5, "--min-fraction", help="A cell is water when at least this fraction of its area is water."),
         largest_body: bool = typer.Option(False, "--largest-body", help="Keep only the largest connected body of water."),
         margin: float = typer.Option(0.0, "--margin", help="Keep only cells whose centre is at least this many metres from the shore."),
-        fill_holes: float = typer.Option(0.0, "--fill-holes", help="Fill islands and land pockets smaller than this many m²."),
+        fill_holes: Optional[float] = typer.Option(None, "--fill-holes", help="Fill islands and land pockets smaller than this many m² (default: half a cell; 0 keeps every one)."),
         supersample: int = typer.Option(8, "--supersample", help="Samples per cell side used to measure each cell's water fraction."),
         name: Optional[str] = typer.Option(None, "--name", help="Map name (default: the output file's name)."),
         preview: Optional[Path] = typer.Option(None, "--preview", help="Preview PNG to write (default: OUTPUT with .png)."),
@@ -91,7 +91,7 @@ def _check_output(output: Path) -> Path:
 def _describe(src, options) -> str:
     parts = [f"Discretized from {src.path.name} ({src.kind}; water: {src.rule}; georeference: {src.georef})"]
     parts.append(f"cells at least {options.min_fraction:.0%} water")
-    if options.fill_holes_m2:
+    if options.fill_holes_m2 is not None:
         parts.append(f"holes under {options.fill_holes_m2:g} m² filled")
     if options.margin_m:
         parts.append(f"{options.margin_m:g} m margin from the shore")

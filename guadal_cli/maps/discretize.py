@@ -9,7 +9,9 @@ water, and a cell is water when at least ``min_fraction`` of its samples are.
 Then, in this order:
 
 1. ``fill_holes_m2``: land pockets enclosed by water and smaller than this area become water
-   (on the samples, so a rock smaller than a cell disappears before it can cost a node);
+   (on the samples, before the fraction). By default (None) pockets under half a cell are filled:
+   such a speck (a sun glint, a boat in the picture) cannot make a cell land on its own, but it
+   would otherwise count as shore for the margin;
 2. ``margin_m``: a cell stays water only if its centre is at least this far from land,
    measured on the samples (to within one sample); the grid's edge counts as land;
 3. ``largest_body``: only the largest 8-connected body of water cells is kept (the graph's
@@ -39,7 +41,7 @@ class DiscretizeOptions:
     min_fraction: float = 0.5
     supersample: int = 8
     margin_m: float = 0.0
-    fill_holes_m2: float = 0.0
+    fill_holes_m2: float | None = None  # None: half a cell
     largest_body: bool = False
 
     def check(self) -> None:
@@ -51,7 +53,7 @@ class DiscretizeOptions:
             raise GuadalError(f"--supersample must be between 1 and 32 samples per cell side (got {self.supersample}).")
         if not self.margin_m >= 0:
             raise GuadalError(f"--margin must be zero or more metres (got {self.margin_m:g}).")
-        if not self.fill_holes_m2 >= 0:
+        if self.fill_holes_m2 is not None and not self.fill_holes_m2 >= 0:
             raise GuadalError(f"--fill-holes must be zero or more square metres (got {self.fill_holes_m2:g}).")
 
 
@@ -172,8 +174,9 @@ def discretize(source, options: DiscretizeOptions, name: str = "", description: 
     sample_m = cell / k
 
     fine = sample_water(source, rows, cols, reference, cell, k)
-    if options.fill_holes_m2 > 0:
-        fine = fill_small_holes(fine, options.fill_holes_m2, sample_m)
+    fill_m2 = cell**2 / 2 if options.fill_holes_m2 is None else options.fill_holes_m2
+    if fill_m2 > 0:
+        fine = fill_small_holes(fine, fill_m2, sample_m)
     fraction = fine.reshape(rows, k, cols, k).mean(axis=(1, 3))
     mask = fraction >= options.min_fraction - 1e-12
     if not mask.any():

@@ -12,25 +12,22 @@ import os
 from pathlib import Path
 
 import numpy as np
+from matplotlib.collections import LineCollection
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
 from ..errors import GuadalError
 from .format import Map
+from .sources import corners_from_centres
 
-_WATER = ListedColormap(["#00000000", "#1f9bd6"])
+_WATER = ListedColormap(["#1f6fb4"])
 _GRID_LINES_UP_TO = 150  # cells per side; beyond, lines would hide the water
-
-
-def _corners(centres: np.ndarray) -> np.ndarray:
-    padded = np.pad(centres, 1, mode="reflect", reflect_type="odd")
-    return 0.25 * (padded[:-1, :-1] + padded[1:, :-1] + padded[:-1, 1:] + padded[1:, 1:])
 
 
 def _cell_edges(map_: Map) -> tuple[np.ndarray, np.ndarray]:
     """Lon/lat of cell corners, (rows+1, cols+1), for square grids and coordinate grids alike."""
     if map_.latlon_grid is not None and min(map_.shape) >= 2:
-        return _corners(map_.lon), _corners(map_.lat)
+        return corners_from_centres(map_.lon), corners_from_centres(map_.lat)
     rows, cols = map_.shape
     half = map_.cell_size_m / 2
     cc, rr = np.meshgrid(np.arange(cols + 1), np.arange(rows + 1))
@@ -41,13 +38,14 @@ def _cell_edges(map_: Map) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _draw_map(ax, map_: Map, alpha: float) -> None:
+    """Water cells filled, every cell outlined (when there are few enough), node centres dotted."""
     lon_e, lat_e = _cell_edges(map_)
-    rows, cols = map_.shape
-    dense = max(rows, cols) <= _GRID_LINES_UP_TO
-    ax.pcolormesh(
-        lon_e, lat_e, map_.mask.astype(float), cmap=_WATER, vmin=0, vmax=1, alpha=alpha,
-        edgecolors="#0b3954" if dense else "face", linewidth=0.3 if dense else 0,
-    )
+    water = np.ma.masked_where(~map_.mask, np.ones(map_.shape))
+    ax.pcolormesh(lon_e, lat_e, water, cmap=_WATER, vmin=0, vmax=1, alpha=alpha, linewidth=0)
+    if max(map_.shape) <= _GRID_LINES_UP_TO:
+        lines = [np.column_stack([lon_e[i], lat_e[i]]) for i in range(lon_e.shape[0])]
+        lines += [np.column_stack([lon_e[:, j], lat_e[:, j]]) for j in range(lon_e.shape[1])]
+        ax.add_collection(LineCollection(lines, colors="#0b3954", linewidths=0.3, alpha=0.6))
     if map_.water_nodes <= 4000:
         ax.plot(map_.lon[map_.mask], map_.lat[map_.mask], ".", color="#0b3954", markersize=1.5)
 
@@ -105,4 +103,7 @@ def preview_map(map_: Map, path: Path) -> None:
     ax = fig.add_subplot()
     ax.set_facecolor("#ebe6d7")
     _draw_map(ax, map_, alpha=1.0)
+    lon_e, lat_e = _cell_edges(map_)
+    ax.set_xlim(lon_e.min(), lon_e.max())
+    ax.set_ylim(lat_e.min(), lat_e.max())
     _finish(fig, ax, map_, _title(map_), path)

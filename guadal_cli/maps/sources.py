@@ -83,11 +83,11 @@ class RasterSource:
         b = self.bounds
         image = self.background
         if image is None:
-            image = np.where(self.water[..., None], np.array([70, 130, 200], np.uint8), np.array([235, 230, 215], np.uint8))
+            image = np.where(self.water[..., None], np.array([156, 195, 230], np.uint8), np.array([235, 230, 215], np.uint8))
         ax.imshow(image, extent=(b.west, b.east, b.south, b.north), interpolation="nearest", origin="upper")
 
 
-def _corners_from_centres(centres: np.ndarray) -> np.ndarray:
+def corners_from_centres(centres: np.ndarray) -> np.ndarray:
     """Cell corners of a structured grid of centres: midpoints inside, linear extrapolation at the edges."""
     padded = np.pad(centres, 1, mode="reflect", reflect_type="odd")
     return 0.25 * (padded[:-1, :-1] + padded[1:, :-1] + padded[:-1, 1:] + padded[1:, 1:])
@@ -170,7 +170,7 @@ class CoordinateGridSource:
         from matplotlib.colors import ListedColormap
 
         ax.pcolormesh(self.corner_lon, self.corner_lat, self.water.astype(float),
-                      cmap=ListedColormap(["#ebe6d7", "#4682c8"]), vmin=0, vmax=1, edgecolors="#bbbbbb", linewidth=0.2)
+                      cmap=ListedColormap(["#ebe6d7", "#9cc3e6"]), vmin=0, vmax=1, edgecolors="#d0ccc0", linewidth=0.2)
 
 
 @dataclass
@@ -228,7 +228,7 @@ class OutlineSource:
     def draw(self, ax) -> None:
         for polygon in self.polygons:
             for k, ring in enumerate(polygon):
-                ax.fill(ring[:, 0], ring[:, 1], color="#4682c8" if k == 0 else "#ebe6d7", alpha=0.6, linewidth=0)
+                ax.fill(ring[:, 0], ring[:, 1], color="#9cc3e6" if k == 0 else "#ebe6d7", linewidth=0)
                 ax.plot(ring[:, 0], ring[:, 1], color="#1d3f6e", linewidth=1.0)
 
 
@@ -251,7 +251,7 @@ def load_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, bool]:
                 return np.repeat(grey[..., None], 3, axis=2), None, True
             has_alpha = "A" in mode or (mode == "P" and "transparency" in img.info)
             rgba = np.asarray(img.convert("RGBA" if has_alpha else "RGB"))
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
+    except (UnidentifiedImageError, Image.DecompressionBombError, OSError, ValueError) as exc:
         raise GuadalError(f"cannot read image '{path.name}': {exc}.") from exc
     rgb = rgba[..., :3].astype(np.float32)
     alpha = rgba[..., 3] if has_alpha else None
@@ -428,7 +428,9 @@ def _open_image(path: Path, bounds: Bounds | None, rule: WaterRule) -> RasterSou
     georef_bounds, georef = image_bounds(path, width, height, bounds)
     applied = rule.resolve(is_grey)
     water = applied.apply(rgb, alpha)
-    described = applied.describe() + ("" if (rule.colour or rule.threshold) else " (default for a " + ("grey" if is_grey else "colour") + " image)")
+    described = applied.describe()
+    if applied != rule:
+        described += f" (default for a {'grey' if is_grey else 'colour'} image)"
     if not water.any():
         raise GuadalError(
             f"no water found in '{path.name}': no pixel matches the rule {applied.describe()}; "
@@ -459,7 +461,7 @@ def _open_grid(path: Path, bounds: Bounds | None, water_value: float, latlon_gri
                 f"coordinate grid '{latlon_grid.name}' gives centres of a {rows}x{cols} mask; cells can be sized from "
                 "centres only with at least 2 rows and 2 columns (give corners instead)."
             )
-        corner_lat, corner_lon, role = _corners_from_centres(lat), _corners_from_centres(lon), "centres"
+        corner_lat, corner_lon, role = corners_from_centres(lat), corners_from_centres(lon), "centres"
     else:
         raise GuadalError(
             f"coordinate grid '{latlon_grid.name}' is {lat.shape[0]}x{lat.shape[1]} but the mask '{path.name}' is "

@@ -148,3 +148,21 @@ def test_min_fraction_trades_shore_cells(tmp_path):
     x, y = metres(strict, strict.lat, strict.lon)
     # a fully-water cell lies entirely inside the disc: its far corner too
     assert np.all(np.hypot(np.abs(x[strict.mask]) + 3, np.abs(y[strict.mask]) + 3) <= 50.0 + 0.75)
+
+
+def test_specks_in_the_water_do_not_count_as_shore_unless_asked(tmp_path):
+    radius, cell, margin = 60.0, 5.0, 8.0
+    rng = np.random.default_rng(1)
+    specks_xy = rng.uniform(-40, 40, size=(40, 2))
+
+    def speckled(x, y):  # sun glints: land specks of about one square metre
+        speck = np.zeros(np.shape(x), dtype=bool)
+        for sx, sy in specks_xy:
+            speck |= (np.abs(x - sx) < 0.5) & (np.abs(y - sy) < 0.5)
+        return disc(radius)(x, y) & ~speck
+
+    clean = make(tmp_path, disc(radius), cell, margin_m=margin)
+    default = make(tmp_path, speckled, cell, margin_m=margin)
+    kept = make(tmp_path, speckled, cell, margin_m=margin, fill_holes_m2=0.0)
+    assert np.array_equal(default.mask, clean.mask)
+    assert kept.water_nodes < clean.water_nodes - 20
