@@ -68,7 +68,7 @@ class Discretized:
     notes: list[str] = field(default_factory=list)
 
     def summary(self) -> dict:
-        labels, bodies = ndimage.label(self.map.mask, structure=_EIGHT)
+        _, bodies = ndimage.label(self.map.mask, structure=_EIGHT)
         data = self.map.summary()
         data.update({
             "bodies": int(bodies),

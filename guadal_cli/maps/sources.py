@@ -51,8 +51,6 @@ class RasterSource:
         h, w = self.water.shape
         self.dlat = (self.bounds.north - self.bounds.south) / h
         self.dlon = (self.bounds.east - self.bounds.west) / w
-        ew, ns = self.bounds.metres_per_degree()
-        self.pixel_size_m = (self.dlon * ew, self.dlat * ns)
 
     @property
     def water_area_m2(self) -> float:
@@ -112,7 +110,6 @@ class CoordinateGridSource:
         cx, cy = self.projection.to_xy(self.centre_lat, self.centre_lon)
         self._tree = cKDTree(np.column_stack([cx.ravel(), cy.ravel()]))
         kx, ky = self.projection.to_xy(self.corner_lat, self.corner_lon)
-        self._kx, self._ky = kx, ky
         ring = np.concatenate([
             np.column_stack([kx[0, :], ky[0, :]]), np.column_stack([kx[1:, -1], ky[1:, -1]]),
             np.column_stack([kx[-1, -2::-1], ky[-1, -2::-1]]), np.column_stack([kx[-2:0:-1, 0], ky[-2:0:-1, 0]]),
@@ -187,6 +184,8 @@ class OutlineSource:
 
     def __post_init__(self) -> None:
         everything = np.concatenate([ring for polygon in self.polygons for ring in polygon])
+        if np.ptp(everything[:, 0]) == 0 or np.ptp(everything[:, 1]) == 0:
+            raise GuadalError(f"no water found: the polygons of outline '{self.path.name}' enclose no area.")
         self.bounds = Bounds(float(everything[:, 1].max()), float(everything[:, 1].min()),
                              float(everything[:, 0].max()), float(everything[:, 0].min()))
         self.projection = LocalProjection(*self.bounds.centre)
@@ -216,7 +215,11 @@ class OutlineSource:
         """Even-odd rule per polygon on each latitude scanline; polygons are then united."""
         out = np.zeros((len(lats), len(lons)), dtype=bool)
         for x1, y1, x2, y2 in self._edges:
-            for i, lat in enumerate(lats):
+            if x1.size == 0:
+                continue
+            rows = np.nonzero((lats >= min(y1.min(), y2.min())) & (lats <= max(y1.max(), y2.max())))[0]
+            for i in rows:
+                lat = lats[i]
                 crossing = (y1 <= lat) != (y2 <= lat)
                 if not crossing.any():
                     continue
@@ -261,7 +264,7 @@ def load_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, bool]:
 
 def _read_text(path: Path, what: str) -> str:
     try:
-        return path.read_text()
+        return path.read_text(encoding="utf-8-sig")  # tolerate the byte-order mark some spreadsheets write
     except (OSError, UnicodeDecodeError) as exc:
         raise GuadalError(f"cannot read {what} '{path.name}': {exc.strerror or exc}.") from exc
 
