@@ -251,14 +251,13 @@ class MissionRunner:
             error = f"{type(exc).__name__}: {exc}"
             raise
         finally:
+            fleet_health = {}
             if fleet is not None:
-                try:
-                    fleet.close()
-                finally:
-                    pass
+                fleet_health = fleet.health()
+                fleet.close()
             self.recorder.write_fields(self.graph, self.environment.ground_truth, self.environment.observation_fields())
             self.recorder.finish(
-                status, error, extra={"stop_reason": self.stop_reason, "final_metrics": getattr(self, "last_metrics", None)}
+                status, error, extra={"stop_reason": self.stop_reason, "fleet": fleet_health, "final_metrics": getattr(self, "last_metrics", None)}
             )
             if previous_term is not None:
                 signal.signal(signal.SIGTERM, previous_term)

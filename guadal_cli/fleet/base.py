@@ -77,6 +77,10 @@ class Fleet(ABC):
     def remaining(self) -> dict[int, float]:
         return {v: self.max_distance - d for v, d in self.distances.items()}
 
+    def health(self) -> dict:
+        """Faults met on the way (messages dropped, vehicles lost), for the run manifest."""
+        return {}
+
     def track_rows(self) -> list[dict]:
         """GPS fixes received since the last call (remote levels); none in simulation.
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import socket
 
 PROTOCOL_VERSION = 1
 MAX_PAYLOAD_BYTES = 16_384
@@ -104,3 +105,14 @@ def decode(payload: bytes, expected: set[str] | None = None) -> dict:
     if "seq" in data and data["seq"] < 0:
         raise ProtocolError(f"'{kind}' message has negative seq {data['seq']}.")
     return data
+
+
+def no_delay(client) -> None:
+    """Send small MQTT packets at once (call on connect): with Nagle's algorithm on, every
+    command and acknowledgement can wait ~40 ms for the previous packet's TCP ack."""
+    sock = client.socket()
+    if sock is not None and hasattr(sock, "setsockopt"):
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError:
+            pass

@@ -21,7 +21,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import socket
 import ssl
 import threading
 import time
@@ -45,16 +44,6 @@ log = logging.getLogger("guadal.remote")
 _LOUD_WARNINGS = 5
 #: answers the protocol expects now and then (a re-sent command answered twice): debug only
 _EXPECTED_DROPS = {"stale", "duplicate"}
-
-
-def no_delay(client: mqtt.Client) -> None:
-    """Send small MQTT packets at once: with Nagle's algorithm a command can wait ~40 ms."""
-    sock = client.socket()
-    if sock is not None and hasattr(sock, "setsockopt"):
-        try:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        except OSError:
-            pass
 
 
 # --- configuration -------------------------------------------------------------------------
@@ -232,7 +221,7 @@ class RemoteFleet(Fleet):
         if reason_code.is_failure:
             self._last_connect_error = f"broker refused the connection: {reason_code}"
             return
-        no_delay(client)
+        msg.no_delay(client)
         fleet = self.config.fleet
         client.subscribe([
             (f"{fleet}/vehicle/+/ack", 1), (f"{fleet}/vehicle/+/measurement", 1),
@@ -559,6 +548,10 @@ class RemoteFleet(Fleet):
         with self._cond:
             spans = [v.t - v.t0 for v in self.vehicles if v.t is not None and v.t0 is not None]
         return max(spans, default=0.0)
+
+    def health(self) -> dict:
+        with self._cond:
+            return {"dropped_messages": dict(sorted(self.dropped.items())), "problems": list(self.problems)}
 
     def track_rows(self) -> list[dict]:
         with self._cond:

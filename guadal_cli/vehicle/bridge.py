@@ -146,6 +146,7 @@ class Bridge:
         if reason_code.is_failure:
             log.error("broker refused the connection: %s", reason_code)
             return
+        messages.no_delay(client)
         # subscribe again on every connect: a restarted broker has forgotten us
         client.subscribe([(self.topic_command, 1), (self.topic_planner, 1)])
         self.events.put(("connected",))

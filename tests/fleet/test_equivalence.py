@@ -7,6 +7,7 @@ emulator and bridges for the run and stops them after); the budget is cut to kee
 from __future__ import annotations
 
 import csv
+import json
 import uuid
 from pathlib import Path
 
@@ -56,3 +57,5 @@ def test_sim_and_sitl_send_the_same_targets(name, broker, tmp_path, monkeypatch)
     with open(runs["sitl"] / "trajectory.csv") as f:
         assert any(r["source"] == "gps" for r in csv.DictReader(f))  # the boats really sailed
     assert processes_marked(f"GUADAL_TEST_MARK={mark}") == [], "the launched stack left processes behind"
+    manifest = json.loads((runs["sitl"] / "manifest.json").read_text())
+    assert manifest["fleet"]["problems"] == []  # a clean run says so in its manifest
