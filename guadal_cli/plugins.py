@@ -12,6 +12,7 @@ import difflib
 import importlib
 import sys
 from dataclasses import dataclass
+from functools import lru_cache
 from importlib.metadata import entry_points
 
 from .errors import GuadalError
@@ -39,6 +40,12 @@ class PluginInfo:
 
 def available(kind: str) -> dict[str, PluginInfo]:
     """All installed plugins of one kind, by name, read from package metadata only."""
+    return dict(_available(kind))
+
+
+@lru_cache(maxsize=None)
+def _available(kind: str) -> dict[str, PluginInfo]:
+    # reading every installed package's metadata is slow: once per process is enough
     group = GROUPS[kind]
     found: dict[str, PluginInfo] = {}
     for ep in sorted(entry_points(group=group), key=lambda e: e.name):

@@ -39,6 +39,8 @@ MEASUREMENT_COLUMNS = ["step", "vehicle", "node", "lat", "lon", "value", "time_s
 
 def fmt(value) -> str:
     """Stable text for CSV cells: integers as is, floats with 10 significant digits."""
+    if isinstance(value, float):  # most cells, numpy floats included: checked first
+        return format(value, ".10g")
     if value is None:
         return ""
     if isinstance(value, bool):
