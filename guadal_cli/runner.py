@@ -72,7 +72,7 @@ def metric_columns(n_vehicles: int, env_metrics) -> list[str]:
 def default_run_dir(prep: Prepared) -> Path:
     parent = Path(prep.mission.output.directory)
     if not parent.is_absolute():
-        parent = prep.base_dir / parent
+        parent = (prep.base_dir / parent).resolve()
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     candidate = parent / f"{prep.mission.name}-seed{prep.mission.seed}-{stamp}"
     i = 1
