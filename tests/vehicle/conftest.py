@@ -13,18 +13,8 @@ sys.path.insert(0, str(Path(__file__).parent))  # vehicle_support, beside this f
 from guadal_cli.fleet.broker import start_broker
 from guadal_cli.maps.format import Map
 from guadal_cli.graph import NavGraph
-from vehicle_support import Stack  # noqa: E402
+from vehicle_support import LAKE, Stack  # noqa: E402
 
-# 5 m cells; a land tongue (column 4, rows 1-4) splits the lake into a west and an east basin
-LAKE = [
-    "000000000",
-    "011101110",
-    "011101110",
-    "011101110",
-    "011101110",
-    "011111110",
-    "000000000",
-]
 
 
 @pytest.fixture(scope="session")

@@ -9,17 +9,8 @@ from guadal_cli.errors import GuadalError
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import Map, haversine_m
 from guadal_cli.vehicle.lowlevel import LowLevelPlanner, refine_map
+from vehicle_support import LAKE
 
-# a lake with a land tongue between the west and east basins (rows 1-4 of column 4)
-LAKE = [
-    "000000000",
-    "011101110",
-    "011101110",
-    "011101110",
-    "011101110",
-    "011111110",
-    "000000000",
-]
 
 
 def lake(latlon: bool = False) -> Map:

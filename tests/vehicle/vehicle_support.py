@@ -20,6 +20,18 @@ from guadal_cli.graph import NavGraph
 GUADAL = [sys.executable, "-m", "guadal_cli"]
 
 
+# 5 m cells; a land tongue (column 4, rows 1-4) splits the lake into a west and an east basin
+LAKE = [
+    "000000000",
+    "011101110",
+    "011101110",
+    "011101110",
+    "011101110",
+    "011111110",
+    "000000000",
+]
+
+
 def _stop(proc: subprocess.Popen) -> None:
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
