@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from collections.abc import Sequence
 
@@ -13,8 +14,11 @@ from rich.table import Table
 
 from .errors import GuadalError
 
-console = Console(highlight=False)
-err_console = Console(stderr=True, highlight=False)
+# Piped into a file or a CI log, rich would assume 80 columns and squeeze wide tables into "…";
+# a terminal keeps its own width (and COLUMNS still wins where set).
+_WIDTH = None if sys.stdout.isatty() or os.environ.get("COLUMNS") else 200
+console = Console(highlight=False, width=_WIDTH)
+err_console = Console(stderr=True, highlight=False, width=_WIDTH)
 
 
 def fail(exc: GuadalError | str) -> typer.Exit:

@@ -58,7 +58,9 @@ def test_the_model_improves_over_informed_missions(algorithm, tmp_path):
     rows = read_csv(out / "metrics.csv")
     rmse = np.array([float(r["rmse"]) for r in rows])
     std = np.array([float(r["mean_std"]) for r in rows])
-    assert rmse[-1] < 0.5 * rmse[0] and std[-1] < 0.2 * std[0]
+    assert rmse[-1] < 0.1 * rmse[0] and std[-1] < 0.2 * std[0]
+    # the estimate never gets worse than the prior: no overshoot between dense samples
+    assert rmse.max() <= rmse[0] + 1e-9
     # mean std never rises: every sample only removes uncertainty
     assert np.all(np.diff(std) <= 1e-9)
 

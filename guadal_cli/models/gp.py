@@ -28,13 +28,18 @@ from scipy.spatial.distance import cdist
 
 
 class KernelConfig(BaseModel):
-    """Covariance of the field: RBF or Matérn, stationary, in metres."""
+    """Covariance of the field: RBF or Matérn, stationary, in metres.
+
+    The default, Matérn 3/2 with a little noise, suits sampling along 5 m grids: a near-noiseless
+    RBF over such dense, clustered samples overshoots between them (measured on the example
+    missions: RMSE rising from 0.15 to 0.6 before falling, and ending 25 times higher).
+    """
 
     model_config = ConfigDict(extra="forbid")
-    type: Literal["rbf", "matern"] = "rbf"
-    length_scale: float = Field(default=25.0, gt=0, description="Correlation length, metres.")
+    type: Literal["rbf", "matern"] = "matern"
+    length_scale: float = Field(default=20.0, gt=0, description="Correlation length, metres.")
     variance: float = Field(default=1.0, gt=0, description="Signal variance.")
-    noise: float = Field(default=1e-4, ge=1e-8, description="Observation noise variance.")
+    noise: float = Field(default=1e-3, ge=1e-8, description="Observation noise variance.")
     nu: Literal[0.5, 1.5, 2.5] = Field(default=1.5, description="Matérn smoothness (matern only).")
 
 
