@@ -70,7 +70,8 @@ class _CsvStream:
 
     def write(self, rows: Iterable[Sequence]) -> None:
         for row in rows:
-            self._writer.writerow([fmt(v) for v in row])
+            # floats (numpy's included) inline: they are most cells, and a call each adds up
+            self._writer.writerow([format(v, ".10g") if isinstance(v, float) else fmt(v) for v in row])
         self._fh.flush()
 
     def close(self) -> None:

@@ -81,7 +81,19 @@ class IncrementalGP:
         self.prior_mean = float(prior_mean)
         self.reset()
 
+    #: up to this many prediction points, the whole point-to-point kernel is kept (32 MB at most)
+    CACHE_POINTS = 2048
+
+    def _kernel_row(self, point: int) -> np.ndarray:
+        """k(point, every point): from the cached kernel on small maps, computed on large ones."""
+        if len(self.points) > self.CACHE_POINTS:
+            return kernel_matrix(self.kernel, self.points[point : point + 1], self.points)[0]
+        if self._K is None:
+            self._K = kernel_matrix(self.kernel, self.points, self.points)
+        return self._K[point]
+
     def reset(self) -> None:
+        self._K = None  # the kernel may have changed (hyperparameter fit)
         n_points = len(self.points)
         self._cap = 64
         self._L = np.zeros((self._cap, self._cap))
@@ -126,7 +138,7 @@ class IncrementalGP:
         n = self.n_
         if n == self._cap:
             self._grow()
-        k_star = kernel_matrix(self.kernel, x, self.points)[0]
+        k_star = self._kernel_row(point) if point is not None else kernel_matrix(self.kernel, x, self.points)[0]
         k_xx = self.kernel.variance + self.kernel.noise
         if n:
             if point is not None:
