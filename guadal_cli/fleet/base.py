@@ -54,20 +54,23 @@ class Fleet(ABC):
     def take_measurement(self, vehicles: Sequence[int] | None = None) -> list[Measurement]:
         """One sample per vehicle (default: all) at its current node."""
 
+    # Fleets keep their vehicles in ``self.vehicles`` (objects with ``id``, ``node`` and
+    # ``distance``) and the budget in ``self._max_distance``, as the paper's Fleet manages its
+    # Vehicles; a fleet that stores them otherwise overrides these three.
     @property
-    @abstractmethod
     def positions(self) -> dict[int, int]:
         """Current node of every vehicle."""
+        return {v.id: v.node for v in self.vehicles}
 
     @property
-    @abstractmethod
     def distances(self) -> dict[int, float]:
         """Metres travelled along the graph by every vehicle."""
+        return {v.id: v.distance for v in self.vehicles}
 
     @property
-    @abstractmethod
     def max_distance(self) -> float:
         """The distance budget of each vehicle, in metres."""
+        return self._max_distance
 
     @property
     @abstractmethod

@@ -100,18 +100,6 @@ class LocalFleet(Fleet):
         return out
 
     @property
-    def positions(self) -> dict[int, int]:
-        return {v.id: v.node for v in self.vehicles}
-
-    @property
-    def distances(self) -> dict[int, float]:
-        return {v.id: v.distance for v in self.vehicles}
-
-    @property
-    def max_distance(self) -> float:
-        return self._max_distance
-
-    @property
     def mission_time(self) -> float:
         return self._time
 

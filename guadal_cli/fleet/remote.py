@@ -531,18 +531,6 @@ class RemoteFleet(Fleet):
         return out
 
     @property
-    def positions(self) -> dict[int, int]:
-        return {v.id: v.node for v in self.vehicles}
-
-    @property
-    def distances(self) -> dict[int, float]:
-        return {v.id: v.distance for v in self.vehicles}
-
-    @property
-    def max_distance(self) -> float:
-        return self._max_distance
-
-    @property
     def mission_time(self) -> float:
         """The vehicles' clock since reset (the latest of them), from telemetry."""
         with self._cond:
