@@ -61,9 +61,6 @@ class AlgorithmSection(PluginSection):
         default=None, description="Operating mode; default: the algorithm's own."
     )
 
-    def as_dict(self) -> dict:
-        return {"type": self.type, **(self.model_extra or {})}
-
 
 class FleetSection(_Strict):
     vehicles: int = Field(ge=1, description="Number of vehicles.")
@@ -251,14 +248,12 @@ def prepare(path: str | Path, seed: int | None = None) -> Prepared:
     try:
         env_cls, env_cfg = plugins.build_config("environment", mission.environment.as_dict(), "environment")
         alg_cls, alg_cfg = plugins.build_config("algorithm", mission.algorithm.as_dict(), "algorithm")
-        backend_section = mission.backend.model_dump()
+        # the level names the backend plugin, and stays among its settings
         backend_cls, backend_cfg = plugins.build_config(
-            "backend", {"type": backend_section.pop("level"), "level": mission.backend.level, **backend_section},
-            "backend",
+            "backend", {"type": mission.backend.level, **mission.backend.model_dump()}, "backend"
         )
     except GuadalError as exc:
         raise GuadalError(f"{where}{exc}") from exc
-    # the level key is how the section names its plugin; backends need not declare it
     mode = mission.algorithm.mode or alg_cls.modes[0]
     if mode not in alg_cls.modes:
         raise GuadalError(

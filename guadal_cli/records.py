@@ -139,7 +139,3 @@ class RunRecorder:
             stream.close()
         self.manifest.update(status=status, ended_at=now_iso(), error=error, **(extra or {}))
         self._write_manifest()
-
-
-def read_manifest(run_dir: Path) -> dict:
-    return json.loads((Path(run_dir) / "manifest.json").read_text())
