@@ -65,7 +65,9 @@ class SklearnRefitGP(GPEnvironment):
             self._X.append(self.graph.xy[m.node])
             self._y.append(m.value)
         kernel = self.config.kernel
-        gpr = GaussianProcessRegressor(kernel=sklearn_kernel(kernel), alpha=kernel.noise, optimizer=None, normalize_y=False)
+        gpr = GaussianProcessRegressor(
+            kernel=sklearn_kernel(kernel), alpha=kernel.noise, optimizer=None, normalize_y=False
+        )
         gpr.fit(np.array(self._X), np.array(self._y) - self.config.prior_mean)
         mean, self._std = gpr.predict(self.graph.xy, return_std=True)
         self._mean = mean + self.config.prior_mean
@@ -109,15 +111,31 @@ def main() -> None:
             wall_inc, env_inc, res, plan_inc = run(path, TimedGP, tmp, f"{map_name}-incremental")
             wall_ref, env_ref, _, plan_ref = run(path, SklearnRefitGP, tmp, f"{map_name}-sklearn")
             rows.append(
-                (map_name, env_inc.graph.n_nodes, res.final_metrics["samples"], res.steps, wall_ref, wall_inc,
-                 wall_ref / wall_inc, env_ref.update_seconds / env_inc.update_seconds,
-                 env_ref.max_mean_diff, env_ref.max_std_diff, plan_inc == plan_ref)
+                (
+                    map_name,
+                    env_inc.graph.n_nodes,
+                    res.final_metrics["samples"],
+                    res.steps,
+                    wall_ref,
+                    wall_inc,
+                    wall_ref / wall_inc,
+                    env_ref.update_seconds / env_inc.update_seconds,
+                    env_ref.max_mean_diff,
+                    env_ref.max_std_diff,
+                    plan_inc == plan_ref,
+                )
             )
-    print(f"Measured {dt.date.today().isoformat()} on {os.cpu_count()} cores, Python {platform.python_version()}.\n")
-    print("| map | nodes | samples | steps | sklearn refit, s | incremental, s | mission speed-up | model-update speed-up | max abs diff mean | max abs diff std | same trajectory |")
+    print(
+        f"Measured {dt.date.today().isoformat()} on {os.cpu_count()} cores, Python {platform.python_version()}.\n"
+    )
+    print(
+        "| map | nodes | samples | steps | sklearn refit, s | incremental, s | mission speed-up | model-update speed-up | max abs diff mean | max abs diff std | same trajectory |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.1f}x | {r[7]:.1f}x | {r[8]:.1e} | {r[9]:.1e} | {'yes' if r[10] else 'no'} |")
+        print(
+            f"| {r[0]} | {r[1]} | {r[2]} | {r[3]} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.1f}x | {r[7]:.1f}x | {r[8]:.1e} | {r[9]:.1e} | {'yes' if r[10] else 'no'} |"
+        )
 
 
 if __name__ == "__main__":

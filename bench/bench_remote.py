@@ -81,7 +81,7 @@ def echo_round_trips(port: int, n: int, cycles: int) -> list[float]:
         for i in ids:
             sender.publish(f"bench/in/{i % n}", str(i).encode(), qos=1)
         with got:
-            got.wait_for(lambda: ids <= received, 10)
+            got.wait_for(lambda ids=ids: ids <= received, 10)
         if c >= 3:  # warm-up
             times.append(time.perf_counter() - t0)
     for client in clients:
@@ -113,8 +113,9 @@ def decision_cycle(counts: list[int], cycles: int, speedup: float) -> list[dict]
         start = auto_positions(graph, n)
         homes = [(float(graph.lat[i]), float(graph.lon[i])) for i in start]
         t0 = time.perf_counter()
-        stack = Stack.launch(map_path=LAKE, vehicles=n, homes=homes, speedup=speedup, broker_kind="mosquitto",
-                             timeout=180)
+        stack = Stack.launch(
+            map_path=LAKE, vehicles=n, homes=homes, speedup=speedup, broker_kind="mosquitto", timeout=180
+        )
         launch_s = time.perf_counter() - t0
         fleet = RemoteFleet(graph, n, 1e9, None, SitlConfig(level="sitl", port=stack.broker_port))
         try:
@@ -124,12 +125,17 @@ def decision_cycle(counts: list[int], cycles: int, speedup: float) -> list[dict]
         finally:
             fleet.close()
             stack.down()
-        rows.append({
-            "vehicles": n, "launch_s": launch_s,
-            "acc_p50_ms": 1e3 * statistics.median(accepted),
-            "p50_ms": 1e3 * statistics.median(cycle), "p95_ms": 1e3 * percentile(cycle, 0.95),
-            "base_p50_ms": 1e3 * statistics.median(base), "base_p95_ms": 1e3 * percentile(base, 0.95),
-        })
+        rows.append(
+            {
+                "vehicles": n,
+                "launch_s": launch_s,
+                "acc_p50_ms": 1e3 * statistics.median(accepted),
+                "p50_ms": 1e3 * statistics.median(cycle),
+                "p95_ms": 1e3 * percentile(cycle, 0.95),
+                "base_p50_ms": 1e3 * statistics.median(base),
+                "base_p95_ms": 1e3 * percentile(base, 0.95),
+            }
+        )
     return rows
 
 
@@ -145,8 +151,15 @@ def run_mission(path: Path, speedup: float | None, out: Path) -> dict:
     wall = time.perf_counter() - t0
     with open(out / mission.stem / "metrics.csv") as f:
         last = list(csv.DictReader(f))[-1]
-    return {"mission": path.name, "speedup": speedup, "status": result.status, "steps": result.steps,
-            "wall_s": wall, "sim_s": float(last["time_s"]), "distance": float(last["total_distance"])}
+    return {
+        "mission": path.name,
+        "speedup": speedup,
+        "status": result.status,
+        "steps": result.steps,
+        "wall_s": wall,
+        "sim_s": float(last["time_s"]),
+        "distance": float(last["total_distance"]),
+    }
 
 
 def main() -> None:
@@ -157,18 +170,26 @@ def main() -> None:
     parser.add_argument("--skip-cycle", action="store_true")
     parser.add_argument("--skip-mission", action="store_true")
     args = parser.parse_args()
-    print(f"{dt.date.today()} · {os.cpu_count()} cores · {platform.machine()} · Python {platform.python_version()}\n")
+    print(
+        f"{dt.date.today()} · {os.cpu_count()} cores · {platform.machine()} · Python {platform.python_version()}\n"
+    )
     if not args.skip_cycle:
         rows = decision_cycle([int(x) for x in args.vehicles.split(",")], args.cycles, args.cycle_speedup)
-        print(f"Decision cycle (goto to the current node → every `reached` ack), {args.cycles} cycles, "
-              f"emulator speed-up {args.cycle_speedup:g}, Mosquitto:\n")
-        print("| boats | all accepted p50 | all reached p50 | reached p95 | echo p50 | echo p95 | "
-              "accepted / echo | reached / echo | stack start-up |")
+        print(
+            f"Decision cycle (goto to the current node → every `reached` ack), {args.cycles} cycles, "
+            f"emulator speed-up {args.cycle_speedup:g}, Mosquitto:\n"
+        )
+        print(
+            "| boats | all accepted p50 | all reached p50 | reached p95 | echo p50 | echo p95 | "
+            "accepted / echo | reached / echo | stack start-up |"
+        )
         print("|---|---|---|---|---|---|---|---|---|")
         for r in rows:
-            print(f"| {r['vehicles']} | {r['acc_p50_ms']:.1f} ms | {r['p50_ms']:.1f} ms | {r['p95_ms']:.1f} ms | "
-                  f"{r['base_p50_ms']:.2f} ms | {r['base_p95_ms']:.2f} ms | {r['acc_p50_ms'] / r['base_p50_ms']:.1f}× | "
-                  f"{r['p50_ms'] / r['base_p50_ms']:.0f}× | {r['launch_s']:.1f} s |")
+            print(
+                f"| {r['vehicles']} | {r['acc_p50_ms']:.1f} ms | {r['p50_ms']:.1f} ms | {r['p95_ms']:.1f} ms | "
+                f"{r['base_p50_ms']:.2f} ms | {r['base_p95_ms']:.2f} ms | {r['acc_p50_ms'] / r['base_p50_ms']:.1f}× | "
+                f"{r['p50_ms'] / r['base_p50_ms']:.0f}× | {r['launch_s']:.1f} s |"
+            )
         print()
     if not args.skip_mission:
         with tempfile.TemporaryDirectory() as tmp:
@@ -178,12 +199,16 @@ def main() -> None:
         print("Whole mission, 3 boats × 925 m (`missions/lake_greedy_sitl.yaml`; sim twin for reference):\n")
         print("| level | speed-up | steps | wall | simulated | wall / simulated | wall / sim-level wall |")
         print("|---|---|---|---|---|---|---|")
-        print(f"| sim | – | {sim['steps']} | {sim['wall_s']:.1f} s | {sim['sim_s']:.0f} s | "
-              f"{sim['wall_s'] / sim['sim_s']:.4f} | 1 |")
+        print(
+            f"| sim | – | {sim['steps']} | {sim['wall_s']:.1f} s | {sim['sim_s']:.0f} s | "
+            f"{sim['wall_s'] / sim['sim_s']:.4f} | 1 |"
+        )
         for r in runs:
-            print(f"| sitl | {r['speedup']:g} | {r['steps']} | {r['wall_s']:.1f} s | {r['sim_s']:.0f} s | "
-                  f"{r['wall_s'] / r['sim_s']:.4f} (1/{r['speedup']:g} = {1 / r['speedup']:.4f}) | "
-                  f"{r['wall_s'] / sim['wall_s']:.1f} |")
+            print(
+                f"| sitl | {r['speedup']:g} | {r['steps']} | {r['wall_s']:.1f} s | {r['sim_s']:.0f} s | "
+                f"{r['wall_s'] / r['sim_s']:.4f} (1/{r['speedup']:g} = {1 / r['speedup']:.4f}) | "
+                f"{r['wall_s'] / sim['wall_s']:.1f} |"
+            )
 
 
 if __name__ == "__main__":

@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-from typing import Optional
-
 import typer
 
 from . import __version__
-from .commands import discretize as discretize_cmd
 from .commands import bridge as bridge_cmd
+from .commands import discretize as discretize_cmd
 from .commands import map as map_cmd
 from .commands import mission as mission_cmd
 from .commands import plugins as plugins_cmd
+from .commands import report as report_cmd
 from .commands import sitl as sitl_cmd
 from .commands import stack as stack_cmd
-from .commands import report as report_cmd
 
 app = typer.Typer(
     name="guadal",
@@ -33,7 +31,9 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _root(
-    version: Optional[bool] = typer.Option(None, "--version", callback=_version, is_eager=True, help="Show the version."),
+    version: bool | None = typer.Option(
+        None, "--version", callback=_version, is_eager=True, help="Show the version."
+    ),
 ) -> None:
     """guadal: run, validate and compare IPP missions."""
 

@@ -54,7 +54,10 @@ class NavGraph:
         src_a, dst_a, w_a = np.concatenate(src), np.concatenate(dst), np.concatenate(w)
         self.adjacency = csr_matrix((w_a, (src_a, dst_a)), shape=(self.n_nodes, self.n_nodes))
         self._neighbors = [
-            tuple(int(v) for v in self.adjacency.indices[self.adjacency.indptr[i] : self.adjacency.indptr[i + 1]])
+            tuple(
+                int(v)
+                for v in self.adjacency.indices[self.adjacency.indptr[i] : self.adjacency.indptr[i + 1]]
+            )
             for i in range(self.n_nodes)
         ]
         self._edge_length = {(int(a), int(b)): float(w) for a, b, w in zip(src_a, dst_a, w_a)}
@@ -64,8 +67,13 @@ class NavGraph:
         self.graph = nx.Graph()
         for i in range(self.n_nodes):
             self.graph.add_node(
-                i, row=int(self.rows[i]), col=int(self.cols[i]), x=float(self.x[i]), y=float(self.y[i]),
-                lat=float(self.lat[i]), lon=float(self.lon[i]),
+                i,
+                row=int(self.rows[i]),
+                col=int(self.cols[i]),
+                x=float(self.x[i]),
+                y=float(self.y[i]),
+                lat=float(self.lat[i]),
+                lon=float(self.lon[i]),
             )
         upper = src_a < dst_a
         self.graph.add_weighted_edges_from(

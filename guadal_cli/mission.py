@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Union
+from typing import Any, Literal
 
 import numpy as np
 import yaml
@@ -39,7 +39,7 @@ class GeoPosition(_Strict):
     lon: float = Field(ge=-180, le=180)
 
 
-Position = Union[int, NodePosition, GridPosition, GeoPosition]
+Position = int | NodePosition | GridPosition | GeoPosition
 
 
 class MapSection(_Strict):
@@ -139,7 +139,10 @@ class Prepared:
     def resolved_dict(self) -> dict:
         """The mission as run: defaults filled in, plugin params as validated."""
         data = self.mission.model_dump(mode="json")
-        data["environment"] = {"type": self.mission.environment.type, **self.environment_config.model_dump(mode="json")}
+        data["environment"] = {
+            "type": self.mission.environment.type,
+            **self.environment_config.model_dump(mode="json"),
+        }
         data["algorithm"] = {
             "type": self.mission.algorithm.type,
             "mode": self.mode,
@@ -164,7 +167,9 @@ def read_mission_file(path: Path) -> dict:
     except (OSError, UnicodeDecodeError) as exc:
         raise GuadalError(f"{path}: cannot read the mission file ({exc}).") from exc
     if not isinstance(data, dict):
-        raise GuadalError(f"{path}: a mission file must be a YAML mapping of sections (name, map, environment, ...).")
+        raise GuadalError(
+            f"{path}: a mission file must be a YAML mapping of sections (name, map, environment, ...)."
+        )
     return data
 
 
@@ -194,7 +199,9 @@ def resolve_initial_nodes(fleet: FleetSection, graph: NavGraph, where: str) -> l
             if isinstance(pos, int) or isinstance(pos, NodePosition):
                 node = pos if isinstance(pos, int) else pos.node
                 if not 0 <= node < graph.n_nodes:
-                    raise GuadalError(f"{field}: node {node} does not exist (nodes are 0..{graph.n_nodes - 1}).")
+                    raise GuadalError(
+                        f"{field}: node {node} does not exist (nodes are 0..{graph.n_nodes - 1})."
+                    )
             elif isinstance(pos, GridPosition):
                 rows, cols = graph.map.shape
                 if not (0 <= pos.row < rows and 0 <= pos.col < cols):
@@ -203,14 +210,18 @@ def resolve_initial_nodes(fleet: FleetSection, graph: NavGraph, where: str) -> l
                     )
                 node = graph.node_at(pos.row, pos.col)
                 if node is None:
-                    raise GuadalError(f"{field}: cell ({pos.row}, {pos.col}) is land; a vehicle must start on water.")
+                    raise GuadalError(
+                        f"{field}: cell ({pos.row}, {pos.col}) is land; a vehicle must start on water."
+                    )
             else:
                 rc = graph.map.rowcol_of(pos.lat, pos.lon)
                 if rc is None:
                     raise GuadalError(f"{field}: ({pos.lat}, {pos.lon}) lies outside the map.")
                 node = graph.node_at(*rc)
                 if node is None:
-                    raise GuadalError(f"{field}: ({pos.lat}, {pos.lon}) is on land; a vehicle must start on water.")
+                    raise GuadalError(
+                        f"{field}: ({pos.lat}, {pos.lon}) is on land; a vehicle must start on water."
+                    )
             nodes.append(int(node))
     if not fleet.allow_shared_nodes and len(set(nodes)) != len(nodes):
         raise GuadalError(
@@ -230,7 +241,9 @@ def auto_positions(graph: NavGraph, n: int) -> list[int]:
     sizes = np.bincount(graph.component)
     body = np.nonzero(graph.component == int(np.argmax(sizes)))[0]
     if len(body) < n:
-        raise GuadalError(f"fleet.vehicles: the largest water body has only {len(body)} nodes for {n} vehicles.")
+        raise GuadalError(
+            f"fleet.vehicles: the largest water body has only {len(body)} nodes for {n} vehicles."
+        )
     centre = graph.xy[body].mean(axis=0)
     order = body[np.lexsort((body, np.hypot(*(graph.xy[body] - centre).T)))]
     return [int(v) for v in order[:n]]
@@ -282,9 +295,20 @@ def prepare(path: str | Path, seed: int | None = None) -> Prepared:
     except GuadalError as exc:
         raise GuadalError(f"{where}{exc}") from exc
     return Prepared(
-        mission=mission, path=path, base_dir=base_dir, map=map_, graph=graph,
-        environment_cls=env_cls, environment_config=env_cfg,
-        algorithm_cls=alg_cls, algorithm_config=alg_cfg, mode=mode,
-        backend_cls=backend_cls, backend_config=backend_cfg, initial_nodes=initial_nodes,
-        environment=environment, environment_seed=env_seed, planner_seed=planner_seed,
+        mission=mission,
+        path=path,
+        base_dir=base_dir,
+        map=map_,
+        graph=graph,
+        environment_cls=env_cls,
+        environment_config=env_cfg,
+        algorithm_cls=alg_cls,
+        algorithm_config=alg_cfg,
+        mode=mode,
+        backend_cls=backend_cls,
+        backend_config=backend_cfg,
+        initial_nodes=initial_nodes,
+        environment=environment,
+        environment_seed=env_seed,
+        planner_seed=planner_seed,
     )

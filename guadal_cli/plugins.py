@@ -12,7 +12,7 @@ import difflib
 import importlib
 import sys
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from importlib.metadata import entry_points
 
 from .errors import GuadalError
@@ -43,7 +43,7 @@ def available(kind: str) -> dict[str, PluginInfo]:
     return dict(_available(kind))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _available(kind: str) -> dict[str, PluginInfo]:
     # reading every installed package's metadata is slow: once per process is enough
     group = GROUPS[kind]
@@ -69,8 +69,7 @@ def _import_target(target: str, kind: str, shown_name: str):
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise GuadalError(
-            f"the {kind} plugin '{shown_name}' could not be imported from module "
-            f"'{module_name}': {exc}."
+            f"the {kind} plugin '{shown_name}' could not be imported from module '{module_name}': {exc}."
         ) from exc
     obj = module
     for part in attr.split("."):

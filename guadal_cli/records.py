@@ -82,10 +82,14 @@ class _CsvStream:
 class RunRecorder:
     """Creates a run directory and appends to it step by step."""
 
-    def __init__(self, directory: Path, resolved_mission: dict, manifest: dict, metric_columns: Sequence[str]):
+    def __init__(
+        self, directory: Path, resolved_mission: dict, manifest: dict, metric_columns: Sequence[str]
+    ):
         directory = Path(directory)
         if directory.exists() and any(directory.iterdir()):
-            raise GuadalError(f"output directory '{directory}' already exists and is not empty; choose another with --output.")
+            raise GuadalError(
+                f"output directory '{directory}' already exists and is not empty; choose another with --output."
+            )
         directory.mkdir(parents=True, exist_ok=True)
         self.directory = directory
         self.manifest = {

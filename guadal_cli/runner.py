@@ -85,7 +85,9 @@ def default_run_dir(prep: Prepared) -> Path:
 class MissionRunner:
     """Composes the plugins of a prepared mission and runs it into a run directory."""
 
-    def __init__(self, prep: Prepared, output: Path | None = None, on_step: Callable[[int, Fleet], None] | None = None):
+    def __init__(
+        self, prep: Prepared, output: Path | None = None, on_step: Callable[[int, Fleet], None] | None = None
+    ):
         self.prep = prep
         self.mission = prep.mission
         self.graph = prep.graph
@@ -137,7 +139,18 @@ class MissionRunner:
         row.update(self.environment.metrics())
         g = self.graph
         traj = [
-            (self.step, v, node, g.rows[node], g.cols[node], g.lat[node], g.lon[node], dist[v], "plan", fleet.mission_time)
+            (
+                self.step,
+                v,
+                node,
+                g.rows[node],
+                g.cols[node],
+                g.lat[node],
+                g.lon[node],
+                dist[v],
+                "plan",
+                fleet.mission_time,
+            )
             for v, node in sorted(fleet.positions.items())
         ]
         meas = [(self.step, m.vehicle, m.node, m.lat, m.lon, m.value, m.time_s) for m in measurements]
@@ -145,7 +158,8 @@ class MissionRunner:
         track = fleet.track_rows()
         if track:
             self.recorder.write_track(
-                (self.step, r["vehicle"], "", "", "", r["lat"], r["lon"], "", "gps", r["time_s"]) for r in track
+                (self.step, r["vehicle"], "", "", "", r["lat"], r["lon"], "", "gps", r["time_s"])
+                for r in track
             )
         self.last_metrics = row
         self.on_step(self.step, fleet)
@@ -171,19 +185,29 @@ class MissionRunner:
             if not (isinstance(v, (int, np.integer)) and 0 <= int(v) < self.n):
                 raise GuadalError(f"algorithm '{name}' named vehicle {v!r}; vehicles are 0..{self.n - 1}.")
             if not (isinstance(node, (int, np.integer)) and 0 <= int(node) < self.graph.n_nodes):
-                raise GuadalError(f"algorithm '{name}' sent vehicle {v} to {node!r}, which is not a node id (0..{self.graph.n_nodes - 1}).")
+                raise GuadalError(
+                    f"algorithm '{name}' sent vehicle {v} to {node!r}, which is not a node id (0..{self.graph.n_nodes - 1})."
+                )
             v, node = int(v), int(node)
-            if self.prep.mode == SEQUENTIAL and node != positions[v] and node not in self.graph.neighbors(positions[v]):
+            if (
+                self.prep.mode == SEQUENTIAL
+                and node != positions[v]
+                and node not in self.graph.neighbors(positions[v])
+            ):
                 raise GuadalError(
                     f"algorithm '{name}' sent vehicle {v} from node {positions[v]} to node {node} in sequential mode, "
                     "where targets must be neighbours."
                 )
             if not self.graph.same_component([positions[v], node]):
-                raise GuadalError(f"algorithm '{name}' sent vehicle {v} to node {node}, which cannot be reached over water.")
+                raise GuadalError(
+                    f"algorithm '{name}' sent vehicle {v} to node {node}, which cannot be reached over water."
+                )
             clean[v] = node
         return clean
 
-    def _next_hops(self, paths: dict[int, list[int]], positions: dict[int, int], waits: dict[int, int], fleet: Fleet) -> dict[int, int]:
+    def _next_hops(
+        self, paths: dict[int, list[int]], positions: dict[int, int], waits: dict[int, int], fleet: Fleet
+    ) -> dict[int, int]:
         """One edge per vehicle with a path, resolving conflicts: the lower id goes first."""
         remaining = fleet.remaining()
         for v in list(paths):
@@ -220,7 +244,10 @@ class MissionRunner:
     def run(self) -> RunResult:
         prep = self.prep
         self.recorder = RunRecorder(
-            self.output, prep.resolved_dict(), self._manifest(), metric_columns(self.n, self.environment.metric_names)
+            self.output,
+            prep.resolved_dict(),
+            self._manifest(),
+            metric_columns(self.n, self.environment.metric_names),
         )
         previous_term = signal.getsignal(signal.SIGTERM)
 
@@ -234,7 +261,9 @@ class MissionRunner:
         fleet = None
         status, error = "failed", None
         try:
-            fleet = self.backend.make_fleet(graph=self.graph, fleet_config=self.mission.fleet, sensor=self.environment.sense, mission=prep)
+            fleet = self.backend.make_fleet(
+                graph=self.graph, fleet_config=self.mission.fleet, sensor=self.environment.sense, mission=prep
+            )
             fleet.reset(prep.initial_nodes)
             first = fleet.take_measurement()
             self.environment.update(first)
@@ -255,9 +284,17 @@ class MissionRunner:
             if fleet is not None:
                 fleet_health = fleet.health()
                 fleet.close()
-            self.recorder.write_fields(self.graph, self.environment.ground_truth, self.environment.observation_fields())
+            self.recorder.write_fields(
+                self.graph, self.environment.ground_truth, self.environment.observation_fields()
+            )
             self.recorder.finish(
-                status, error, extra={"stop_reason": self.stop_reason, "fleet": fleet_health, "final_metrics": getattr(self, "last_metrics", None)}
+                status,
+                error,
+                extra={
+                    "stop_reason": self.stop_reason,
+                    "fleet": fleet_health,
+                    "final_metrics": getattr(self, "last_metrics", None),
+                },
             )
             if previous_term is not None:
                 signal.signal(signal.SIGTERM, previous_term)
@@ -280,7 +317,9 @@ class MissionRunner:
                 self.stop_reason = f"the algorithm's last {idle_decisions} decisions moved no vehicle"
                 return
             positions = dict(fleet.positions)
-            targets = self._check_targets(self.planner.next_targets(self._observation(fleet, done)), positions)
+            targets = self._check_targets(
+                self.planner.next_targets(self._observation(fleet, done)), positions
+            )
             targets = {v: t for v, t in targets.items() if not done[v] and t != positions[v]}
             if not targets:
                 self.stop_reason = "the algorithm sent no more targets"

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from .errors import GuadalError
 from .fleet import messages as msg
-from .fleet.broker import child_options, start_broker, stop_process
+from .fleet.broker import child_options, start_broker
 
 STATE_FILE = "stack.json"
 
@@ -156,11 +156,22 @@ class Stack:
     # --- start -----------------------------------------------------------------------------
     @classmethod
     def launch(
-        cls, *, map_path: str | Path, vehicles: int, homes: list[tuple[float, float]], speedup: float = 50.0,
-        fleet: str = "guadal", broker_kind: str = "auto", broker_port: int = 0, failsafe_timeout: float = 30.0,
-        emulator_args: Sequence[str] = (), bridge_args: Sequence[str] = (), timeout: float = 60.0,
-        state_dir: Path | None = None, detach: bool = False,
-    ) -> "Stack":
+        cls,
+        *,
+        map_path: str | Path,
+        vehicles: int,
+        homes: list[tuple[float, float]],
+        speedup: float = 50.0,
+        fleet: str = "guadal",
+        broker_kind: str = "auto",
+        broker_port: int = 0,
+        failsafe_timeout: float = 30.0,
+        emulator_args: Sequence[str] = (),
+        bridge_args: Sequence[str] = (),
+        timeout: float = 60.0,
+        state_dir: Path | None = None,
+        detach: bool = False,
+    ) -> Stack:
         """Start broker, emulator and bridges; return when every bridge is online."""
         if len(homes) != vehicles:
             raise GuadalError(f"the stack needs one home per vehicle ({vehicles}), got {len(homes)}.")
@@ -168,12 +179,29 @@ class Stack:
         state_dir = Path(tempfile.mkdtemp(prefix="guadal-stack-")) if own else Path(state_dir)
         logs = state_dir / "logs"
         logs.mkdir(parents=True, exist_ok=True)
-        info = {"fleet": fleet, "map": str(Path(map_path).resolve()), "vehicles": vehicles, "speedup": speedup,
-                "homes": [list(h) for h in homes]}
+        info = {
+            "fleet": fleet,
+            "map": str(Path(map_path).resolve()),
+            "vehicles": vehicles,
+            "speedup": speedup,
+            "homes": [list(h) for h in homes],
+        }
         stack = cls(state_dir, info, [], own_dir=own)
         try:
-            stack._start(map_path, vehicles, homes, speedup, fleet, broker_kind, broker_port, failsafe_timeout,
-                         list(emulator_args), list(bridge_args), timeout, detach)
+            stack._start(
+                map_path,
+                vehicles,
+                homes,
+                speedup,
+                fleet,
+                broker_kind,
+                broker_port,
+                failsafe_timeout,
+                list(emulator_args),
+                list(bridge_args),
+                timeout,
+                detach,
+            )
         except BaseException:
             stack.down()
             raise
@@ -183,24 +211,69 @@ class Stack:
         log = self.state_dir / "logs" / f"{name}.log"
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         with open(log, "wb") as out:  # fresh: the ready line read later must be this run's
-            popen = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, env=env,
-                                     **child_options(detach))
+            popen = subprocess.Popen(
+                cmd,
+                stdin=subprocess.DEVNULL,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                env=env,
+                **child_options(detach),
+            )
         proc = StackProcess(name, popen.pid, str(log), _start_ticks(popen.pid), popen)
         self.processes.append(proc)
         return proc
 
-    def _start(self, map_path, vehicles, homes, speedup, fleet, broker_kind, broker_port, failsafe_timeout,
-               emulator_args, bridge_args, timeout, detach) -> None:
+    def _start(
+        self,
+        map_path,
+        vehicles,
+        homes,
+        speedup,
+        fleet,
+        broker_kind,
+        broker_port,
+        failsafe_timeout,
+        emulator_args,
+        bridge_args,
+        timeout,
+        detach,
+    ) -> None:
         deadline = time.monotonic() + timeout
-        broker = start_broker(broker_kind, port=broker_port, workdir=self.state_dir / "logs",
-                              timeout=min(timeout, 15.0), detach=detach)
-        self.processes.append(StackProcess("broker", broker.pid, str(broker.log_path), _start_ticks(broker.pid), broker.process))
-        self.info["broker"] = {"kind": broker.kind, "host": broker.host, "port": broker.port, "url": broker.url}
+        broker = start_broker(
+            broker_kind,
+            port=broker_port,
+            workdir=self.state_dir / "logs",
+            timeout=min(timeout, 15.0),
+            detach=detach,
+        )
+        self.processes.append(
+            StackProcess("broker", broker.pid, str(broker.log_path), _start_ticks(broker.pid), broker.process)
+        )
+        self.info["broker"] = {
+            "kind": broker.kind,
+            "host": broker.host,
+            "port": broker.port,
+            "url": broker.url,
+        }
 
         fmt = lambda h: f"{h[0]:.8f},{h[1]:.8f}"  # noqa: E731
-        emulator = self._spawn("emulator", _emulator(
-            "--vehicles", str(vehicles), "--home", fmt(homes[0]), "--homes", ";".join(map(fmt, homes)),
-            "--speedup", f"{speedup:g}", "--base-port", "0", *emulator_args), detach)
+        emulator = self._spawn(
+            "emulator",
+            _emulator(
+                "--vehicles",
+                str(vehicles),
+                "--home",
+                fmt(homes[0]),
+                "--homes",
+                ";".join(map(fmt, homes)),
+                "--speedup",
+                f"{speedup:g}",
+                "--base-port",
+                "0",
+                *emulator_args,
+            ),
+            detach,
+        )
         ready = _wait_ready_line(emulator, deadline)
         endpoints = mavlink_endpoints(ready, vehicles)
         self.info["emulator"] = {"ready": ready, "mavlink": endpoints}
@@ -208,10 +281,27 @@ class Stack:
         watcher = StatusWatcher(broker.host, broker.port, fleet, vehicles)
         try:
             for i, endpoint in enumerate(endpoints):
-                self._spawn(f"bridge-{i}", _guadal(
-                    "bridge", "--vehicle-id", str(i), "--mavlink", endpoint, "--broker", broker.url,
-                    "--map", self.info["map"], "--fleet", fleet, "--arm", "--failsafe-timeout", f"{failsafe_timeout:g}",
-                    *bridge_args), detach)
+                self._spawn(
+                    f"bridge-{i}",
+                    _guadal(
+                        "bridge",
+                        "--vehicle-id",
+                        str(i),
+                        "--mavlink",
+                        endpoint,
+                        "--broker",
+                        broker.url,
+                        "--map",
+                        self.info["map"],
+                        "--fleet",
+                        fleet,
+                        "--arm",
+                        "--failsafe-timeout",
+                        f"{failsafe_timeout:g}",
+                        *bridge_args,
+                    ),
+                    detach,
+                )
             watcher.wait_all_online(deadline, self.processes)
         finally:
             watcher.close()
@@ -219,14 +309,17 @@ class Stack:
     # --- state file ------------------------------------------------------------------------
     def save(self) -> Path:
         path = self.state_dir / STATE_FILE
-        data = {**self.info, "processes": [
-            {"name": p.name, "pid": p.pid, "log": p.log, "started": p.started} for p in self.processes
-        ]}
+        data = {
+            **self.info,
+            "processes": [
+                {"name": p.name, "pid": p.pid, "log": p.log, "started": p.started} for p in self.processes
+            ],
+        }
         path.write_text(json.dumps(data, indent=2))
         return path
 
     @classmethod
-    def load(cls, state_dir: Path) -> "Stack | None":
+    def load(cls, state_dir: Path) -> Stack | None:
         path = Path(state_dir) / STATE_FILE
         if not path.is_file():
             return None
@@ -234,7 +327,9 @@ class Stack:
             data = json.loads(path.read_text())
             processes = [StackProcess(**p) for p in data.pop("processes")]
         except (OSError, ValueError, TypeError, KeyError) as exc:
-            raise GuadalError(f"{path}: not a guadal stack state file ({exc.__class__.__name__}); remove it.") from exc
+            raise GuadalError(
+                f"{path}: not a guadal stack state file ({exc.__class__.__name__}); remove it."
+            ) from exc
         return cls(state_dir, data, processes)
 
     # --- stop ------------------------------------------------------------------------------
@@ -274,9 +369,13 @@ def _wait_ready_line(proc: StackProcess, deadline: float) -> dict:
                 if isinstance(data, dict):
                     return data
         if not proc.alive():
-            raise GuadalError(f"the MAVLink emulator exited before it was ready: {proc.tail() or 'no output'}.")
+            raise GuadalError(
+                f"the MAVLink emulator exited before it was ready: {proc.tail() or 'no output'}."
+            )
         if time.monotonic() > deadline:
-            raise GuadalError(f"the MAVLink emulator printed no ready line in time: {proc.tail() or 'no output'}.")
+            raise GuadalError(
+                f"the MAVLink emulator printed no ready line in time: {proc.tail() or 'no output'}."
+            )
         time.sleep(0.05)
 
 
@@ -299,7 +398,9 @@ def mavlink_endpoints(ready: dict, vehicles: int) -> list[str]:
         if conn:
             out.append(str(conn))
     if len(out) != vehicles:
-        raise GuadalError(f"the MAVLink emulator's ready line names {len(out)} vehicle links, not {vehicles}: {json.dumps(ready)}.")
+        raise GuadalError(
+            f"the MAVLink emulator's ready line names {len(out)} vehicle links, not {vehicles}: {json.dumps(ready)}."
+        )
     return out
 
 
@@ -337,13 +438,17 @@ class StatusWatcher:
             while missing():
                 dead = [p for p in processes if not p.alive()]
                 if dead:
-                    raise GuadalError(f"stack process '{dead[0].name}' exited while starting: {dead[0].tail() or 'no output'}.")
+                    raise GuadalError(
+                        f"stack process '{dead[0].name}' exited while starting: {dead[0].tail() or 'no output'}."
+                    )
                 left = deadline - time.monotonic()
                 if left <= 0:
                     late = missing()
                     tail = next((p.tail() for p in processes if p.name == f"bridge-{late[0]}"), "")
-                    raise GuadalError(f"bridge{'s' if len(late) > 1 else ''} {', '.join(map(str, late))} not online in time"
-                                      + (f": {tail}." if tail else "."))
+                    raise GuadalError(
+                        f"bridge{'s' if len(late) > 1 else ''} {', '.join(map(str, late))} not online in time"
+                        + (f": {tail}." if tail else ".")
+                    )
                 self._cond.wait(min(left, 0.2))
 
     def close(self) -> None:
@@ -351,8 +456,18 @@ class StatusWatcher:
         self._client.loop_stop()
 
 
-def stack_up(*, map_path: Path, vehicles: int, speedup: float, broker_port: int = 0, state_dir: Path | None = None,
-             fleet: str = "guadal", broker_kind: str = "auto", failsafe_timeout: float = 30.0, timeout: float = 60.0) -> Stack:
+def stack_up(
+    *,
+    map_path: Path,
+    vehicles: int,
+    speedup: float,
+    broker_port: int = 0,
+    state_dir: Path | None = None,
+    fleet: str = "guadal",
+    broker_kind: str = "auto",
+    failsafe_timeout: float = 30.0,
+    timeout: float = 60.0,
+) -> Stack:
     """``guadal stack up``: homes on distinct water nodes near the lake's centre (where
     ``initial_positions: auto`` starts a mission), processes detached, a state file written."""
     from .graph import NavGraph
@@ -362,12 +477,24 @@ def stack_up(*, map_path: Path, vehicles: int, speedup: float, broker_port: int 
     state_dir = Path(state_dir) if state_dir else default_state_dir()
     existing = Stack.load(state_dir)
     if existing is not None and any(p.alive() for p in existing.processes):
-        raise GuadalError(f"a stack is already up ({existing.broker_url}, state in {state_dir}); run 'guadal stack down' first.")
+        raise GuadalError(
+            f"a stack is already up ({existing.broker_url}, state in {state_dir}); run 'guadal stack down' first."
+        )
     graph = NavGraph(load_map(Path(map_path)))
     homes = [(float(graph.lat[n]), float(graph.lon[n])) for n in auto_positions(graph, vehicles)]
-    stack = Stack.launch(map_path=map_path, vehicles=vehicles, homes=homes, speedup=speedup, fleet=fleet,
-                         broker_kind=broker_kind, broker_port=broker_port, failsafe_timeout=failsafe_timeout,
-                         timeout=timeout, state_dir=state_dir, detach=True)
+    stack = Stack.launch(
+        map_path=map_path,
+        vehicles=vehicles,
+        homes=homes,
+        speedup=speedup,
+        fleet=fleet,
+        broker_kind=broker_kind,
+        broker_port=broker_port,
+        failsafe_timeout=failsafe_timeout,
+        timeout=timeout,
+        state_dir=state_dir,
+        detach=True,
+    )
     try:
         stack.save()
     except BaseException:

@@ -22,7 +22,9 @@ def blob(shape, water_cells, seed, holes=0, smooth=6.0):
     # an elongated basin plus smooth noise gives a natural, lobed shoreline
     # a gently curved, elongated basin (like a park lake) ...
     bend = 0.25 * rows * np.sin(np.pi * cc / cols)
-    basin = -(((rr - rows / 2 + bend - 0.12 * rows) / (rows / 2.2)) ** 2 + ((cc - cols / 2) / (cols / 2.1)) ** 2)
+    basin = -(
+        ((rr - rows / 2 + bend - 0.12 * rows) / (rows / 2.2)) ** 2 + ((cc - cols / 2) / (cols / 2.1)) ** 2
+    )
     # ... with a lobed shoreline from smooth noise
     noise = ndimage.gaussian_filter(rng.standard_normal(shape), smooth)
     field = basin + 0.35 * noise / noise.std()
@@ -31,7 +33,7 @@ def blob(shape, water_cells, seed, holes=0, smooth=6.0):
         field -= 3.0 * np.exp(-(((rr - r0) / (rows * 0.06)) ** 2 + ((cc - c0) / (cols * 0.05)) ** 2))
     field[[0, -1], :] = field[:, [0, -1]] = -np.inf  # shore all round
     order = np.sort(field.ravel())[::-1]
-    lo, hi = 0, len(order) - 1
+    _lo, _hi = 0, len(order) - 1
     # grow the threshold until the largest connected body has exactly water_cells cells
     for k in range(water_cells, len(order)):
         mask = field >= order[k - 1]

@@ -12,7 +12,9 @@ import paho.mqtt.client as mqtt
 class Inbox:
     """A connected paho client whose received messages can be waited on (no sleeps)."""
 
-    def __init__(self, port: int, host: str = "127.0.0.1", client_id: str = "", keepalive: int = 60, will=None):
+    def __init__(
+        self, port: int, host: str = "127.0.0.1", client_id: str = "", keepalive: int = 60, will=None
+    ):
         self.messages: list[mqtt.MQTTMessage] = []
         self._cond = threading.Condition()
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id)

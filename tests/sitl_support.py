@@ -83,7 +83,9 @@ def collect(conn, msg_types, until, timeout: float = 10.0) -> list:
     while True:
         remaining = deadline - time.monotonic()
         if remaining <= 0:
-            raise AssertionError(f"condition not met within {timeout} s; saw {[m.get_type() for m in seen][-10:]}")
+            raise AssertionError(
+                f"condition not met within {timeout} s; saw {[m.get_type() for m in seen][-10:]}"
+            )
         msg = conn.recv_match(type=msg_types, blocking=True, timeout=remaining)
         if msg is None:
             continue
@@ -99,7 +101,9 @@ def command_long(conn, sysid: int, command: int, *params: float) -> int:
     return wait_for(conn, "COMMAND_ACK", lambda m: m.command == command).result
 
 
-def command_int(conn, sysid: int, command: int, frame: int, params=(0, 0, 0, 0), x: int = 0, y: int = 0, z: float = 0.0) -> int:
+def command_int(
+    conn, sysid: int, command: int, frame: int, params=(0, 0, 0, 0), x: int = 0, y: int = 0, z: float = 0.0
+) -> int:
     conn.mav.command_int_send(sysid, 1, frame, command, 0, 0, *params, x, y, z)
     return wait_for(conn, "COMMAND_ACK", lambda m: m.command == command).result
 

@@ -7,8 +7,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import yaml
-
 ROOT = Path(__file__).resolve().parents[1]
 LAKE = ROOT / "maps" / "urban_lake.json"
 
@@ -18,7 +16,11 @@ def run_cli(*args, cwd=None, env=None, timeout=300) -> subprocess.CompletedProce
     full_env = {**os.environ, **(env or {})}
     return subprocess.run(
         [sys.executable, "-m", "guadal_cli", *map(str, args)],
-        cwd=cwd, env=full_env, capture_output=True, text=True, timeout=timeout,
+        cwd=cwd,
+        env=full_env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
     )
 
 
@@ -28,8 +30,11 @@ def base_mission(**overrides) -> dict:
         "name": "t",
         "seed": 3,
         "map": str(LAKE),
-        "environment": {"type": "gp", "ground_truth": {"type": "shekel", "peaks": 3},
-                        "kernel": {"type": "rbf", "length_scale": 20.0, "noise": 1e-4}},
+        "environment": {
+            "type": "gp",
+            "ground_truth": {"type": "shekel", "peaks": 3},
+            "kernel": {"type": "rbf", "length_scale": 20.0, "noise": 1e-4},
+        },
         "algorithm": {"type": "greedy"},
         "fleet": {"vehicles": 3, "initial_positions": "auto", "max_distance": 120.0, "speed": 0.5},
         "backend": {"level": "sim"},

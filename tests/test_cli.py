@@ -2,9 +2,9 @@ import json
 import subprocess
 import sys
 
-from guadal_cli import __version__
-
 from support import ROOT, run_cli
+
+from guadal_cli import __version__
 
 
 def test_version():
@@ -15,7 +15,9 @@ def test_version():
 def test_schema_is_a_json_schema_of_the_mission_sections():
     schema = json.loads(run_cli("schema").stdout)
     assert schema["$schema"].endswith("2020-12/schema")
-    assert {"name", "map", "environment", "algorithm", "fleet", "backend", "output"} <= set(schema["properties"])
+    assert {"name", "map", "environment", "algorithm", "fleet", "backend", "output"} <= set(
+        schema["properties"]
+    )
     assert set(schema["required"]) >= {"name", "map", "environment", "algorithm", "fleet"}
 
 
@@ -26,7 +28,9 @@ def test_plugins_are_listed_without_importing_them():
         "loaded = [m for m in sys.modules if m.startswith(('guadal_cli.planners.', 'guadal_cli.envs.'))];"
         "print(json.dumps({'rows': rows, 'loaded': loaded}))"
     )
-    out = json.loads(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout)
+    out = json.loads(
+        subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    )
     assert {"greedy", "expected_improvement", "lawnmower", "random"} <= set(out["rows"]["algorithm"])
     assert "gp" in out["rows"]["environment"] and "sim" in out["rows"]["backend"]
     assert out["loaded"] == []

@@ -17,7 +17,13 @@ def l_lake() -> Map:
 
 
 def test_eight_connected_with_metric_lengths():
-    g = NavGraph(Map(mask=np.ones((3, 3), bool), cell_size_m=5.0, reference={"row": 1, "col": 1, "lat": 37.0, "lon": -6.0}))
+    g = NavGraph(
+        Map(
+            mask=np.ones((3, 3), bool),
+            cell_size_m=5.0,
+            reference={"row": 1, "col": 1, "lat": 37.0, "lon": -6.0},
+        )
+    )
     centre = g.node_at(1, 1)
     assert len(g.neighbors(centre)) == 8
     assert g.edge_length(centre, g.node_at(0, 1)) == pytest.approx(5.0)
@@ -40,7 +46,9 @@ def test_nearest_node_and_georeference_agree():
     n = g.node_at(4, 3)
     assert g.nearest_node(g.lat[n], g.lon[n]) == n
     # one cell east is 5 m on the ground
-    assert haversine_m(g.lat[g.node_at(4, 2)], g.lon[g.node_at(4, 2)], g.lat[n], g.lon[n]) == pytest.approx(5.0, rel=1e-3)
+    assert haversine_m(g.lat[g.node_at(4, 2)], g.lon[g.node_at(4, 2)], g.lat[n], g.lon[n]) == pytest.approx(
+        5.0, rel=1e-3
+    )
 
 
 def test_fill_graph_attribute_accepts_node_vectors_and_grids():
@@ -77,8 +85,12 @@ def test_map_round_trip_and_shipped_maps(tmp_path):
 def test_full_latlon_grid_maps_take_positions_from_coordinates(tmp_path):
     lat = 37.0 + np.arange(3)[:, None] * -1e-4 + np.zeros((3, 4))
     lon = -6.0 + np.arange(4)[None, :] * 1.2e-4 + np.zeros((3, 4))
-    m = Map(mask=np.ones((3, 4), bool), cell_size_m=10, reference={"row": 0, "col": 0, "lat": 37.0, "lon": -6.0},
-            latlon_grid=(lat, lon))
+    m = Map(
+        mask=np.ones((3, 4), bool),
+        cell_size_m=10,
+        reference={"row": 0, "col": 0, "lat": 37.0, "lon": -6.0},
+        latlon_grid=(lat, lon),
+    )
     m.save(tmp_path / "grid.json")
     g = NavGraph(load_map(tmp_path / "grid.json"))
     # non-square cells: ~11.1 m north-south, ~10.6 m east-west at 37 degrees
@@ -91,12 +103,21 @@ def test_full_latlon_grid_maps_take_positions_from_coordinates(tmp_path):
     [
         ("not json", "not readable JSON"),
         ('{"format": "other"}', "not a guadal map"),
-        ('{"format": "guadal-map", "version": 1, "mask": ["01", "1"], "cell_size_m": 5, '
-         '"reference": {"row": 0, "col": 0, "lat": 0, "lon": 0}}', "mask row 1"),
-        ('{"format": "guadal-map", "version": 1, "mask": ["00"], "cell_size_m": 5, '
-         '"reference": {"row": 0, "col": 0, "lat": 0, "lon": 0}}', "no water"),
-        ('{"format": "guadal-map", "version": 1, "mask": ["01"], "cell_size_m": -1, '
-         '"reference": {"row": 0, "col": 0, "lat": 0, "lon": 0}}', "cell_size_m"),
+        (
+            '{"format": "guadal-map", "version": 1, "mask": ["01", "1"], "cell_size_m": 5, '
+            '"reference": {"row": 0, "col": 0, "lat": 0, "lon": 0}}',
+            "mask row 1",
+        ),
+        (
+            '{"format": "guadal-map", "version": 1, "mask": ["00"], "cell_size_m": 5, '
+            '"reference": {"row": 0, "col": 0, "lat": 0, "lon": 0}}',
+            "no water",
+        ),
+        (
+            '{"format": "guadal-map", "version": 1, "mask": ["01"], "cell_size_m": -1, '
+            '"reference": {"row": 0, "col": 0, "lat": 0, "lon": 0}}',
+            "cell_size_m",
+        ),
     ],
 )
 def test_bad_map_files_get_one_sentence(tmp_path, content, fragment):

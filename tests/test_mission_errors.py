@@ -3,11 +3,10 @@
 import copy
 
 import pytest
+from support import base_mission, run_cli
 from typer.testing import CliRunner
 
 from guadal_cli.app import app
-
-from support import base_mission, run_cli
 
 
 def mutate(path, value):
@@ -25,28 +24,82 @@ def mutate(path, value):
 DELETE = object()
 
 CASES = {
-    "unknown top-level key": (lambda: {**base_mission(), "flet": {}}, ["flet", "unknown key", "allowed:", "fleet"]),
-    "unknown fleet key": (lambda: mutate(["fleet", "speeed"], 1.0), ["fleet.speeed", "unknown key", "max_distance"]),
-    "unknown plugin param": (lambda: mutate(["algorithm", "temperature"], 3), ["algorithm.temperature", "unknown key"]),
+    "unknown top-level key": (
+        lambda: {**base_mission(), "flet": {}},
+        ["flet", "unknown key", "allowed:", "fleet"],
+    ),
+    "unknown fleet key": (
+        lambda: mutate(["fleet", "speeed"], 1.0),
+        ["fleet.speeed", "unknown key", "max_distance"],
+    ),
+    "unknown plugin param": (
+        lambda: mutate(["algorithm", "temperature"], 3),
+        ["algorithm.temperature", "unknown key"],
+    ),
     "wrong type": (lambda: mutate(["fleet", "vehicles"], "three"), ["fleet.vehicles", "integer"]),
     "budget zero": (lambda: mutate(["fleet", "max_distance"], 0), ["fleet.max_distance", "greater than 0"]),
-    "budget negative": (lambda: mutate(["fleet", "max_distance"], -50), ["fleet.max_distance", "greater than 0", "-50"]),
-    "zero vehicles": (lambda: mutate(["fleet", "vehicles"], 0), ["fleet.vehicles", "greater than or equal to 1"]),
-    "more vehicles than nodes": (lambda: mutate(["fleet", "vehicles"], 400), ["fleet.vehicles", "400 vehicles", "351 water nodes"]),
+    "budget negative": (
+        lambda: mutate(["fleet", "max_distance"], -50),
+        ["fleet.max_distance", "greater than 0", "-50"],
+    ),
+    "zero vehicles": (
+        lambda: mutate(["fleet", "vehicles"], 0),
+        ["fleet.vehicles", "greater than or equal to 1"],
+    ),
+    "more vehicles than nodes": (
+        lambda: mutate(["fleet", "vehicles"], 400),
+        ["fleet.vehicles", "400 vehicles", "351 water nodes"],
+    ),
     "missing map file": (lambda: mutate(["map"], "nowhere/lake.json"), ["map.path", "does not exist"]),
     "missing section": (lambda: mutate(["fleet"], DELETE), ["fleet", "required"]),
-    "position on land": (lambda: mutate(["fleet", "initial_positions"], [{"row": 0, "col": 0}, 5, 6]), ["initial_positions[0]", "land"]),
-    "position off the grid": (lambda: mutate(["fleet", "initial_positions"], [{"row": 99, "col": 3}, 5, 6]), ["initial_positions[0]", "off the grid"]),
-    "node id out of range": (lambda: mutate(["fleet", "initial_positions"], [1, 2, 9999]), ["initial_positions[2]", "9999", "0..350"]),
-    "lat/lon off the map": (lambda: mutate(["fleet", "initial_positions"], [{"lat": 40.0, "lon": -3.0}, 5, 6]), ["initial_positions[0]", "outside the map"]),
-    "wrong number of positions": (lambda: mutate(["fleet", "initial_positions"], [1, 2]), ["2 positions given for 3 vehicles"]),
-    "two on one node": (lambda: mutate(["fleet", "initial_positions"], [4, 4, 6]), ["same node", "allow_shared_nodes"]),
-    "unknown algorithm": (lambda: mutate(["algorithm", "type"], "gredy"), ["algorithm.type", "unknown algorithm 'gredy'", "Did you mean 'greedy'"]),
-    "unknown environment": (lambda: mutate(["environment", "type"], "gpp"), ["environment.type", "known:", "Did you mean 'gp'"]),
-    "unknown level": (lambda: mutate(["backend", "level"], "simm"), ["backend.type", "unknown backend 'simm'"]),
-    "mode not supported": (lambda: mutate(["algorithm", "mode"], "target"), ["algorithm.mode", "supports sequential"]),
-    "bad nested ground truth": (lambda: mutate(["environment", "ground_truth"], {"type": "shekel", "peaks": 0}), ["environment.ground_truth.peaks", "greater than or equal to 1"]),
-    "bad kernel": (lambda: mutate(["environment", "kernel"], {"type": "cubic"}), ["environment.kernel.type", "'rbf' or 'matern'"]),
+    "position on land": (
+        lambda: mutate(["fleet", "initial_positions"], [{"row": 0, "col": 0}, 5, 6]),
+        ["initial_positions[0]", "land"],
+    ),
+    "position off the grid": (
+        lambda: mutate(["fleet", "initial_positions"], [{"row": 99, "col": 3}, 5, 6]),
+        ["initial_positions[0]", "off the grid"],
+    ),
+    "node id out of range": (
+        lambda: mutate(["fleet", "initial_positions"], [1, 2, 9999]),
+        ["initial_positions[2]", "9999", "0..350"],
+    ),
+    "lat/lon off the map": (
+        lambda: mutate(["fleet", "initial_positions"], [{"lat": 40.0, "lon": -3.0}, 5, 6]),
+        ["initial_positions[0]", "outside the map"],
+    ),
+    "wrong number of positions": (
+        lambda: mutate(["fleet", "initial_positions"], [1, 2]),
+        ["2 positions given for 3 vehicles"],
+    ),
+    "two on one node": (
+        lambda: mutate(["fleet", "initial_positions"], [4, 4, 6]),
+        ["same node", "allow_shared_nodes"],
+    ),
+    "unknown algorithm": (
+        lambda: mutate(["algorithm", "type"], "gredy"),
+        ["algorithm.type", "unknown algorithm 'gredy'", "Did you mean 'greedy'"],
+    ),
+    "unknown environment": (
+        lambda: mutate(["environment", "type"], "gpp"),
+        ["environment.type", "known:", "Did you mean 'gp'"],
+    ),
+    "unknown level": (
+        lambda: mutate(["backend", "level"], "simm"),
+        ["backend.type", "unknown backend 'simm'"],
+    ),
+    "mode not supported": (
+        lambda: mutate(["algorithm", "mode"], "target"),
+        ["algorithm.mode", "supports sequential"],
+    ),
+    "bad nested ground truth": (
+        lambda: mutate(["environment", "ground_truth"], {"type": "shekel", "peaks": 0}),
+        ["environment.ground_truth.peaks", "greater than or equal to 1"],
+    ),
+    "bad kernel": (
+        lambda: mutate(["environment", "kernel"], {"type": "cubic"}),
+        ["environment.kernel.type", "'rbf' or 'matern'"],
+    ),
 }
 
 

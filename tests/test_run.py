@@ -2,20 +2,19 @@
 
 import csv
 import json
-import os
 import signal
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-
 from support import ROOT, base_mission, run_cli
 
 SIM_MISSIONS = sorted(
-    p for p in (ROOT / "missions").glob("*.yaml") if yaml.safe_load(p.read_text()).get("backend", {}).get("level", "sim") == "sim"
+    p
+    for p in (ROOT / "missions").glob("*.yaml")
+    if yaml.safe_load(p.read_text()).get("backend", {}).get("level", "sim") == "sim"
 )
 
 
@@ -29,10 +28,19 @@ def test_every_example_mission_runs_and_writes_its_files(mission, tmp_path):
     out = tmp_path / "run"
     proc = run_cli("run", mission, "--output", out, "--quiet")
     assert proc.returncode == 0, proc.stderr
-    for name in ("mission.resolved.yaml", "manifest.json", "metrics.csv", "trajectory.csv", "measurements.csv", "fields.csv"):
+    for name in (
+        "mission.resolved.yaml",
+        "manifest.json",
+        "metrics.csv",
+        "trajectory.csv",
+        "measurements.csv",
+        "fields.csv",
+    ):
         assert (out / name).is_file(), name
     manifest = json.loads((out / "manifest.json").read_text())
-    assert manifest["status"] == "complete" and manifest["seed"] == yaml.safe_load(mission.read_text())["seed"]
+    assert (
+        manifest["status"] == "complete" and manifest["seed"] == yaml.safe_load(mission.read_text())["seed"]
+    )
     assert manifest["plugins"]["algorithm"]["name"] and manifest["guadal_version"]
     metrics = read_csv(out / "metrics.csv")
     assert len(metrics) == manifest["steps"] + 1
@@ -41,14 +49,19 @@ def test_every_example_mission_runs_and_writes_its_files(mission, tmp_path):
 
 
 def test_same_mission_and_seed_give_byte_identical_csvs(tmp_path, write_mission):
-    mission = write_mission(base_mission(algorithm={"type": "expected_improvement"},
-                                         environment={"type": "gp", "noise_std": 0.05}))
+    mission = write_mission(
+        base_mission(
+            algorithm={"type": "expected_improvement"}, environment={"type": "gp", "noise_std": 0.05}
+        )
+    )
     for name in ("a", "b"):
         assert run_cli("run", mission, "-o", tmp_path / name, "-q").returncode == 0
     for name in ("metrics.csv", "trajectory.csv", "measurements.csv", "fields.csv"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
     assert run_cli("run", mission, "-o", tmp_path / "c", "-q", "--seed", "4").returncode == 0
-    assert (tmp_path / "a" / "measurements.csv").read_bytes() != (tmp_path / "c" / "measurements.csv").read_bytes()
+    assert (tmp_path / "a" / "measurements.csv").read_bytes() != (
+        tmp_path / "c" / "measurements.csv"
+    ).read_bytes()
 
 
 @pytest.mark.parametrize("algorithm", ["greedy", "expected_improvement"])
@@ -70,8 +83,11 @@ def test_vehicles_never_share_a_node_and_hop_one_edge_per_step(tmp_path, write_m
     from guadal_cli.maps.format import load_map
 
     graph = NavGraph(load_map(ROOT / "maps" / "urban_lake.json"))
-    mission = write_mission(base_mission(algorithm={"type": "random", "mode": "target"},
-                                         fleet={"vehicles": 4, "max_distance": 300}))
+    mission = write_mission(
+        base_mission(
+            algorithm={"type": "random", "mode": "target"}, fleet={"vehicles": 4, "max_distance": 300}
+        )
+    )
     assert run_cli("run", mission, "-o", tmp_path / "r", "-q").returncode == 0
     by_step = {}
     for row in read_csv(tmp_path / "r" / "trajectory.csv"):
@@ -85,7 +101,9 @@ def test_vehicles_never_share_a_node_and_hop_one_edge_per_step(tmp_path, write_m
 
 
 def test_target_mode_measures_at_every_intermediate_node(tmp_path, write_mission):
-    mission = write_mission(base_mission(algorithm={"type": "expected_improvement"}, fleet={"vehicles": 1, "max_distance": 150}))
+    mission = write_mission(
+        base_mission(algorithm={"type": "expected_improvement"}, fleet={"vehicles": 1, "max_distance": 150})
+    )
     assert run_cli("run", mission, "-o", tmp_path / "r", "-q").returncode == 0
     traj = [r for r in read_csv(tmp_path / "r" / "trajectory.csv") if r["source"] == "plan"]
     meas = read_csv(tmp_path / "r" / "measurements.csv")
@@ -97,16 +115,25 @@ def test_target_mode_measures_at_every_intermediate_node(tmp_path, write_mission
 
 @pytest.mark.parametrize("stop", ["ctrl-c", "terminate"])
 def test_ctrl_c_leaves_a_readable_run_marked_interrupted(stop, tmp_path, write_mission):
-    mission = write_mission(base_mission(map=str(ROOT / "maps" / "reservoir.json"),
-                                         environment={"type": "gp", "kernel": {"length_scale": 25.0}},
-                                         fleet={"vehicles": 3, "max_distance": 100000}))
+    mission = write_mission(
+        base_mission(
+            map=str(ROOT / "maps" / "reservoir.json"),
+            environment={"type": "gp", "kernel": {"length_scale": 25.0}},
+            fleet={"vehicles": 3, "max_distance": 100000},
+        )
+    )
     out = tmp_path / "r"
-    proc = subprocess.Popen([sys.executable, "-m", "guadal_cli", "run", str(mission), "-o", str(out), "-q"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "guadal_cli", "run", str(mission), "-o", str(out), "-q"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     metrics = out / "metrics.csv"
     # wait until the mission has written a few steps, then interrupt it as a user would
     deadline = 120
     import time
+
     start = time.monotonic()
     while time.monotonic() - start < deadline:
         if metrics.exists() and metrics.read_text().count("\n") > 5:
@@ -151,8 +178,11 @@ class Northward(Planner):
 
 
 def _northward_run(tmp_path, write_mission, algorithm_type, env=None):
-    mission = write_mission(base_mission(algorithm={"type": algorithm_type, "prefer": "north"},
-                                         fleet={"vehicles": 1, "max_distance": 500}))
+    mission = write_mission(
+        base_mission(
+            algorithm={"type": algorithm_type, "prefer": "north"}, fleet={"vehicles": 1, "max_distance": 500}
+        )
+    )
     out = tmp_path / "run"
     proc = run_cli("run", mission, "-o", out, "-q", env=env)
     assert proc.returncode == 0, proc.stderr
@@ -163,7 +193,9 @@ def _northward_run(tmp_path, write_mission, algorithm_type, env=None):
 
 def test_algorithm_from_outside_the_package_by_module_and_class(tmp_path, write_mission):
     (tmp_path / "northward.py").write_text(PLUGIN)
-    manifest = _northward_run(tmp_path, write_mission, "northward:Northward", env={"PYTHONPATH": str(tmp_path)})
+    manifest = _northward_run(
+        tmp_path, write_mission, "northward:Northward", env={"PYTHONPATH": str(tmp_path)}
+    )
     assert manifest["plugins"]["algorithm"]["name"] == "northward:Northward"
 
 
@@ -176,10 +208,18 @@ def test_algorithm_registered_by_another_package_through_its_entry_point(tmp_pat
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: guadal-northward\nVersion: 1.2.0\n")
     (info / "entry_points.txt").write_text("[guadal.algorithms]\nnorthward = northward:Northward\n")
     listing = run_cli("plugins", "--json", env={"PYTHONPATH": str(site)})
-    assert {"kind": "algorithm", "name": "northward", "target": "northward:Northward",
-            "package": "guadal-northward 1.2.0"} in json.loads(listing.stdout)
+    assert {
+        "kind": "algorithm",
+        "name": "northward",
+        "target": "northward:Northward",
+        "package": "guadal-northward 1.2.0",
+    } in json.loads(listing.stdout)
     manifest = _northward_run(tmp_path, write_mission, "northward", env={"PYTHONPATH": str(site)})
-    assert manifest["plugins"]["algorithm"] == {"name": "northward", "distribution": "guadal-northward", "version": "1.2.0"}
+    assert manifest["plugins"]["algorithm"] == {
+        "name": "northward",
+        "distribution": "guadal-northward",
+        "version": "1.2.0",
+    }
 
 
 STUBBORN = '''
@@ -196,8 +236,12 @@ class Stubborn(Planner):
 
 def test_a_planner_whose_targets_can_never_be_reached_ends_the_mission(tmp_path, write_mission):
     (tmp_path / "stubborn.py").write_text(STUBBORN)
-    mission = write_mission(base_mission(algorithm={"type": "stubborn:Stubborn"},
-                                         fleet={"vehicles": 2, "initial_positions": [0, 40], "max_distance": 500}))
+    mission = write_mission(
+        base_mission(
+            algorithm={"type": "stubborn:Stubborn"},
+            fleet={"vehicles": 2, "initial_positions": [0, 40], "max_distance": 500},
+        )
+    )
     proc = run_cli("run", mission, "-o", tmp_path / "r", "-q", env={"PYTHONPATH": str(tmp_path)}, timeout=120)
     assert proc.returncode == 0, proc.stderr
     manifest = json.loads((tmp_path / "r" / "manifest.json").read_text())

@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 import signal
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -20,42 +19,90 @@ class _Stopped(BaseException):
 def register(app: typer.Typer) -> None:
     @app.command("bridge")
     def bridge(
-        vehicle_id: Optional[int] = typer.Option(None, "--vehicle-id", help="Vehicle number N (topics F/vehicle/N/...)."),
-        mavlink: Optional[str] = typer.Option(None, "--mavlink", help="tcp:HOST:PORT, udpin:HOST:PORT, /dev/ttyACM0 ..."),
-        broker: Optional[str] = typer.Option(None, "--broker", help="mqtt://host:port or mqtt://user:password@host:port (mqtts:// for TLS)."),
-        map_path: Optional[str] = typer.Option(None, "--map", help="The guadal map file the planner uses."),
-        fleet: Optional[str] = typer.Option(None, "--fleet", help="Topic prefix shared with the planner (default: guadal)."),
-        sensor: Optional[str] = typer.Option(None, "--sensor", help="synthetic:CSV, replay:CSV or serial:/dev/ttyUSB0."),
-        baud: Optional[int] = typer.Option(None, "--baud", help="Baud rate of a serial autopilot (default: 115200)."),
-        arm: Optional[bool] = typer.Option(None, "--arm/--no-arm", help="Arm at start-up, retrying until the autopilot agrees."),
-        arm_retry_interval: Optional[float] = typer.Option(None, "--arm-retry-interval", help="Seconds between arming attempts (default: 5)."),
-        guided: Optional[bool] = typer.Option(None, "--guided/--no-guided", help="Set GUIDED at start-up."),
-        failsafe_timeout: Optional[float] = typer.Option(None, "--failsafe-timeout", help="Seconds of planner silence before HOLD (default: 10)."),
-        arrival_radius: Optional[float] = typer.Option(None, "--arrival-radius", help="Metres that count as reached (default: 2)."),
-        telemetry_hz: Optional[float] = typer.Option(None, "--telemetry-hz", help="Telemetry messages per second (default: 2)."),
-        refine: Optional[int] = typer.Option(None, "--refine", help="High-resolution factor of the path grid (default: 3)."),
-        waypoint_command: Optional[str] = typer.Option(None, "--waypoint-command", help="position_target or mission_item."),
-        hold_on_exit: Optional[bool] = typer.Option(None, "--hold-on-exit/--no-hold-on-exit", help="HOLD when the bridge stops (default: on)."),
-        connect_timeout: Optional[float] = typer.Option(None, "--connect-timeout", help="Seconds to wait for the autopilot's heartbeat (default: 60)."),
-        log_level: Optional[str] = typer.Option(None, "--log-level", help="debug, info, warning or error (default: info)."),
-        config: Optional[Path] = typer.Option(None, "--config", help="YAML file with the same settings (underscored names)."),
+        vehicle_id: int | None = typer.Option(
+            None, "--vehicle-id", help="Vehicle number N (topics F/vehicle/N/...)."
+        ),
+        mavlink: str | None = typer.Option(
+            None, "--mavlink", help="tcp:HOST:PORT, udpin:HOST:PORT, /dev/ttyACM0 ..."
+        ),
+        broker: str | None = typer.Option(
+            None, "--broker", help="mqtt://host:port or mqtt://user:password@host:port (mqtts:// for TLS)."
+        ),
+        map_path: str | None = typer.Option(None, "--map", help="The guadal map file the planner uses."),
+        fleet: str | None = typer.Option(
+            None, "--fleet", help="Topic prefix shared with the planner (default: guadal)."
+        ),
+        sensor: str | None = typer.Option(
+            None, "--sensor", help="synthetic:CSV, replay:CSV or serial:/dev/ttyUSB0."
+        ),
+        baud: int | None = typer.Option(
+            None, "--baud", help="Baud rate of a serial autopilot (default: 115200)."
+        ),
+        arm: bool | None = typer.Option(
+            None, "--arm/--no-arm", help="Arm at start-up, retrying until the autopilot agrees."
+        ),
+        arm_retry_interval: float | None = typer.Option(
+            None, "--arm-retry-interval", help="Seconds between arming attempts (default: 5)."
+        ),
+        guided: bool | None = typer.Option(None, "--guided/--no-guided", help="Set GUIDED at start-up."),
+        failsafe_timeout: float | None = typer.Option(
+            None, "--failsafe-timeout", help="Seconds of planner silence before HOLD (default: 10)."
+        ),
+        arrival_radius: float | None = typer.Option(
+            None, "--arrival-radius", help="Metres that count as reached (default: 2)."
+        ),
+        telemetry_hz: float | None = typer.Option(
+            None, "--telemetry-hz", help="Telemetry messages per second (default: 2)."
+        ),
+        refine: int | None = typer.Option(
+            None, "--refine", help="High-resolution factor of the path grid (default: 3)."
+        ),
+        waypoint_command: str | None = typer.Option(
+            None, "--waypoint-command", help="position_target or mission_item."
+        ),
+        hold_on_exit: bool | None = typer.Option(
+            None, "--hold-on-exit/--no-hold-on-exit", help="HOLD when the bridge stops (default: on)."
+        ),
+        connect_timeout: float | None = typer.Option(
+            None, "--connect-timeout", help="Seconds to wait for the autopilot's heartbeat (default: 60)."
+        ),
+        log_level: str | None = typer.Option(
+            None, "--log-level", help="debug, info, warning or error (default: info)."
+        ),
+        config: Path | None = typer.Option(
+            None, "--config", help="YAML file with the same settings (underscored names)."
+        ),
     ) -> None:
         """Bridge one vehicle: planner commands over MQTT in, guided waypoints over MAVLink out."""
         from ..vehicle.config import load_config
 
         overrides = {
-            "vehicle_id": vehicle_id, "mavlink": mavlink, "broker": broker, "map": map_path, "fleet": fleet,
-            "sensor": sensor, "baud": baud, "arm": arm, "guided": guided, "failsafe_timeout": failsafe_timeout,
-            "arrival_radius": arrival_radius, "telemetry_hz": telemetry_hz, "refine": refine,
-            "waypoint_command": waypoint_command, "hold_on_exit": hold_on_exit, "log_level": log_level,
-            "connect_timeout": connect_timeout, "arm_retry_interval": arm_retry_interval,
+            "vehicle_id": vehicle_id,
+            "mavlink": mavlink,
+            "broker": broker,
+            "map": map_path,
+            "fleet": fleet,
+            "sensor": sensor,
+            "baud": baud,
+            "arm": arm,
+            "guided": guided,
+            "failsafe_timeout": failsafe_timeout,
+            "arrival_radius": arrival_radius,
+            "telemetry_hz": telemetry_hz,
+            "refine": refine,
+            "waypoint_command": waypoint_command,
+            "hold_on_exit": hold_on_exit,
+            "log_level": log_level,
+            "connect_timeout": connect_timeout,
+            "arm_retry_interval": arm_retry_interval,
         }
         try:
             settings = load_config(config, overrides)
         except GuadalError as exc:
             raise fail(exc)
         logging.basicConfig(
-            level=settings.log_level.upper(), format=f"%(asctime)s vehicle {settings.vehicle_id} %(levelname)s %(message)s"
+            level=settings.log_level.upper(),
+            format=f"%(asctime)s vehicle {settings.vehicle_id} %(levelname)s %(message)s",
         )
         running = {"bridge": None}
 
@@ -98,7 +145,9 @@ def _build(settings):
     planner = LowLevelPlanner(map_, settings.refine, graph=graph)
     sensor = None
     if settings.sensor is not None:
-        section = parse_sensor_option(settings.sensor) if isinstance(settings.sensor, str) else settings.sensor
+        section = (
+            parse_sensor_option(settings.sensor) if isinstance(settings.sensor, str) else settings.sensor
+        )
         sensor = build_sensor(section, SensorContext(graph=graph, base_dir=settings.sensor_base_dir))
     link = AutopilotLink(settings.mavlink, settings.baud, source_system=settings.source_system)
     log.info("waiting for the autopilot on %s", settings.mavlink)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -18,28 +17,67 @@ _HELP = (
     "or your own rule with --water-color or --threshold. See docs/discretize.md."
 )
 
+
 def register(app: typer.Typer) -> None:
     @app.command("discretize", help=_HELP)
     def discretize_cmd(
-        source: Path = typer.Argument(..., help="Image (.png .jpg .tif), grid mask (.csv .txt) or outline (.geojson)."),
-        output: Path = typer.Option(..., "--output", "-o", help="Map file to write (JSON)."),
-        cell_size: Optional[float] = typer.Option(
-            None, "--cell-size", help="Side of the square cells, in metres (default for a grid mask with --latlon-grid: its own cell size)."
+        source: Path = typer.Argument(
+            ..., help="Image (.png .jpg .tif), grid mask (.csv .txt) or outline (.geojson)."
         ),
-        bounds: Optional[str] = typer.Option(None, "--bounds", help="Image corners: north,south,east,west in degrees."),
-        water_color: Optional[str] = typer.Option(None, "--water-color", help="Water's colour, R,G,B (0-255) or #RRGGBB."),
-        tolerance: Optional[float] = typer.Option(None, "--tolerance", help="Largest RGB distance from --water-color that is still water (default 40)."),
-        threshold: Optional[str] = typer.Option(None, "--threshold", help="Water rule CHANNEL OP VALUE, e.g. 'blue>120', 'index>0.2' (channels: red green blue gray index)."),
-        invert: bool = typer.Option(False, "--invert", help="Swap water and land of the image rule (e.g. black = water masks)."),
-        water_value: Optional[float] = typer.Option(None, "--water-value", help="Grid masks: the value that means water (default 1; 0 for inverted files)."),
-        latlon_grid: Optional[Path] = typer.Option(None, "--latlon-grid", help="Grid masks: \"lat,lon\" per cell centre or corner, ';'-separated."),
-        min_fraction: float = typer.Option(0.5, "--min-fraction", help="A cell is water when at least this fraction of its area is water."),
-        largest_body: bool = typer.Option(False, "--largest-body", help="Keep only the largest connected body of water."),
-        margin: float = typer.Option(0.0, "--margin", help="Keep only cells whose centre is at least this many metres from the shore."),
-        fill_holes: Optional[float] = typer.Option(None, "--fill-holes", help="Fill islands and land pockets smaller than this many m² (default: half a cell; 0 keeps every one)."),
-        supersample: int = typer.Option(8, "--supersample", help="Samples per cell side used to measure each cell's water fraction."),
-        name: Optional[str] = typer.Option(None, "--name", help="Map name (default: the output file's name)."),
-        preview: Optional[Path] = typer.Option(None, "--preview", help="Preview PNG to write (default: OUTPUT with .png)."),
+        output: Path = typer.Option(..., "--output", "-o", help="Map file to write (JSON)."),
+        cell_size: float | None = typer.Option(
+            None,
+            "--cell-size",
+            help="Side of the square cells, in metres (default for a grid mask with --latlon-grid: its own cell size).",
+        ),
+        bounds: str | None = typer.Option(
+            None, "--bounds", help="Image corners: north,south,east,west in degrees."
+        ),
+        water_color: str | None = typer.Option(
+            None, "--water-color", help="Water's colour, R,G,B (0-255) or #RRGGBB."
+        ),
+        tolerance: float | None = typer.Option(
+            None,
+            "--tolerance",
+            help="Largest RGB distance from --water-color that is still water (default 40).",
+        ),
+        threshold: str | None = typer.Option(
+            None,
+            "--threshold",
+            help="Water rule CHANNEL OP VALUE, e.g. 'blue>120', 'index>0.2' (channels: red green blue gray index).",
+        ),
+        invert: bool = typer.Option(
+            False, "--invert", help="Swap water and land of the image rule (e.g. black = water masks)."
+        ),
+        water_value: float | None = typer.Option(
+            None,
+            "--water-value",
+            help="Grid masks: the value that means water (default 1; 0 for inverted files).",
+        ),
+        latlon_grid: Path | None = typer.Option(
+            None, "--latlon-grid", help="Grid masks: \"lat,lon\" per cell centre or corner, ';'-separated."
+        ),
+        min_fraction: float = typer.Option(
+            0.5, "--min-fraction", help="A cell is water when at least this fraction of its area is water."
+        ),
+        largest_body: bool = typer.Option(
+            False, "--largest-body", help="Keep only the largest connected body of water."
+        ),
+        margin: float = typer.Option(
+            0.0, "--margin", help="Keep only cells whose centre is at least this many metres from the shore."
+        ),
+        fill_holes: float | None = typer.Option(
+            None,
+            "--fill-holes",
+            help="Fill islands and land pockets smaller than this many m² (default: half a cell; 0 keeps every one).",
+        ),
+        supersample: int = typer.Option(
+            8, "--supersample", help="Samples per cell side used to measure each cell's water fraction."
+        ),
+        name: str | None = typer.Option(None, "--name", help="Map name (default: the output file's name)."),
+        preview: Path | None = typer.Option(
+            None, "--preview", help="Preview PNG to write (default: OUTPUT with .png)."
+        ),
         no_preview: bool = typer.Option(False, "--no-preview", help="Do not write a preview."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
@@ -53,18 +91,36 @@ def register(app: typer.Typer) -> None:
             if preview_path is not None and preview_path.resolve() == target.resolve():
                 raise GuadalError("--preview and --output name the same file; give the preview a .png name.")
             image_options = tuple(
-                flag for flag, given in (("--water-color", water_color), ("--threshold", threshold), ("--invert", invert)) if given
+                flag
+                for flag, given in (
+                    ("--water-color", water_color),
+                    ("--threshold", threshold),
+                    ("--invert", invert),
+                )
+                if given
             )
             if tolerance is not None and not water_color:
-                raise GuadalError("--tolerance goes with --water-color (the largest RGB distance from that colour).")
-            rule = WaterRule.from_options(water_color, 40.0 if tolerance is None else tolerance, threshold, invert)
+                raise GuadalError(
+                    "--tolerance goes with --water-color (the largest RGB distance from that colour)."
+                )
+            rule = WaterRule.from_options(
+                water_color, 40.0 if tolerance is None else tolerance, threshold, invert
+            )
             src = open_source(
-                source, bounds=bounds, rule=rule, water_value=water_value, latlon_grid=latlon_grid,
+                source,
+                bounds=bounds,
+                rule=rule,
+                water_value=water_value,
+                latlon_grid=latlon_grid,
                 image_only_options=image_options,
             )
             options = DiscretizeOptions(
-                cell_size_m=cell_size, min_fraction=min_fraction, supersample=supersample,
-                margin_m=margin, fill_holes_m2=fill_holes, largest_body=largest_body,
+                cell_size_m=cell_size,
+                min_fraction=min_fraction,
+                supersample=supersample,
+                margin_m=margin,
+                fill_holes_m2=fill_holes,
+                largest_body=largest_body,
             )
             result = discretize(src, options, name=name or target.stem, description=_describe(src, options))
             _write(result, target, preview_path)
@@ -82,7 +138,9 @@ def register(app: typer.Typer) -> None:
 
 def _check_output(output: Path) -> Path:
     if output.exists() and output.is_dir():
-        raise GuadalError(f"--output '{output}' is a folder; give the map file's name (e.g. {output}/lake.json).")
+        raise GuadalError(
+            f"--output '{output}' is a folder; give the map file's name (e.g. {output}/lake.json)."
+        )
     if not output.parent.is_dir():
         raise GuadalError(f"--output '{output}': folder '{output.parent}' does not exist.")
     return output

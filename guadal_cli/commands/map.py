@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -31,7 +30,9 @@ def info(
 @map_app.command("show")
 def show(
     path: Path = typer.Argument(..., help="A guadal map file."),
-    output: Optional[Path] = typer.Option(None, "--output", "-o", help="PNG to write (default: the map's name with .png)."),
+    output: Path | None = typer.Option(
+        None, "--output", "-o", help="PNG to write (default: the map's name with .png)."
+    ),
 ) -> None:
     """Write a PNG preview of a map: water cells, cell outlines and node centres on lat/lon axes."""
     from ..maps.format import load_map

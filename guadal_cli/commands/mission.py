@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -19,8 +18,10 @@ def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
         mission: Path = typer.Argument(..., help="Mission YAML file."),
-        output: Optional[Path] = typer.Option(None, "--output", "-o", help="Run directory to create (must be new or empty)."),
-        seed: Optional[int] = typer.Option(None, "--seed", help="Override the mission's seed."),
+        output: Path | None = typer.Option(
+            None, "--output", "-o", help="Run directory to create (must be new or empty)."
+        ),
+        seed: int | None = typer.Option(None, "--seed", help="Override the mission's seed."),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     ) -> None:
@@ -35,8 +36,13 @@ def register(app: typer.Typer) -> None:
         budget = prep.mission.fleet.max_distance * prep.mission.fleet.vehicles
         show = not (quiet or as_json)
         progress = Progress(
-            TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.fields[status]}"),
-            TimeElapsedColumn(), console=console, disable=not show, transient=False,
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            TextColumn("{task.fields[status]}"),
+            TimeElapsedColumn(),
+            console=console,
+            disable=not show,
+            transient=False,
         )
         task = progress.add_task(prep.mission.name, total=budget, status="")
 
@@ -55,9 +61,18 @@ def register(app: typer.Typer) -> None:
         except GuadalError as exc:
             raise fail(exc)
         if as_json:
-            print_json({"directory": str(result.directory), "status": result.status, "steps": result.steps, "metrics": result.final_metrics})
+            print_json(
+                {
+                    "directory": str(result.directory),
+                    "status": result.status,
+                    "steps": result.steps,
+                    "metrics": result.final_metrics,
+                }
+            )
         elif not quiet:
-            print_mapping(f"{prep.mission.name}: {result.status} after {result.steps} steps", result.final_metrics)
+            print_mapping(
+                f"{prep.mission.name}: {result.status} after {result.steps} steps", result.final_metrics
+            )
             console.print(f"run directory: {result.directory}")
 
     @app.command("validate")

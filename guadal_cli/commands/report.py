@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 from contextlib import nullcontext
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -16,13 +15,39 @@ def register(app: typer.Typer) -> None:
     @app.command("report")
     def report(
         runs: list[Path] = typer.Argument(..., help="Run directories, or folders that contain them."),
-        output: Optional[Path] = typer.Option(None, "--output", "-o", help="Folder for the HTML page, figures, animations and geo files; without it only the tables are printed."),
-        group_by: str = typer.Option("algorithm.type", "--group-by", "-g", help="Comma-separated dotted fields of the resolved mission to group by."),
-        x_axis: str = typer.Option("distance", "--x", help="Metric curves against 'distance' (fleet metres) or 'time' (mission seconds)."),
-        metrics: Optional[str] = typer.Option(None, "--metrics", help="Comma-separated metrics to plot (default: coverage and every task metric)."),
-        animate: str = typer.Option("gif", "--animate", help="Step-by-step animation of the first run of each group: gif, mp4 (needs ffmpeg) or none."),
-        frames: int = typer.Option(120, "--frames", help="At most this many animation frames (steps are subsampled)."),
-        as_csv: bool = typer.Option(False, "--csv", help="Print the tables as CSV (runs, a blank line, groups)."),
+        output: Path | None = typer.Option(
+            None,
+            "--output",
+            "-o",
+            help="Folder for the HTML page, figures, animations and geo files; without it only the tables are printed.",
+        ),
+        group_by: str = typer.Option(
+            "algorithm.type",
+            "--group-by",
+            "-g",
+            help="Comma-separated dotted fields of the resolved mission to group by.",
+        ),
+        x_axis: str = typer.Option(
+            "distance",
+            "--x",
+            help="Metric curves against 'distance' (fleet metres) or 'time' (mission seconds).",
+        ),
+        metrics: str | None = typer.Option(
+            None,
+            "--metrics",
+            help="Comma-separated metrics to plot (default: coverage and every task metric).",
+        ),
+        animate: str = typer.Option(
+            "gif",
+            "--animate",
+            help="Step-by-step animation of the first run of each group: gif, mp4 (needs ffmpeg) or none.",
+        ),
+        frames: int = typer.Option(
+            120, "--frames", help="At most this many animation frames (steps are subsampled)."
+        ),
+        as_csv: bool = typer.Option(
+            False, "--csv", help="Print the tables as CSV (runs, a blank line, groups)."
+        ),
         as_json: bool = typer.Option(False, "--json", help="Print the tables as JSON."),
         as_markdown: bool = typer.Option(False, "--markdown", help="Print the tables as Markdown."),
     ) -> None:
@@ -46,10 +71,14 @@ def register(app: typer.Typer) -> None:
             found = find_runs(runs)
             result = build(found, options)
             if output is not None:
-                with console.status("writing report", spinner="dots") if not quiet else nullcontext() as status:
+                with (
+                    console.status("writing report", spinner="dots") if not quiet else nullcontext() as status
+                ):
+
                     def on_file(what: str) -> None:
                         if status is not None:
                             status.update(f"writing report: {what}")
+
                     write(result, output, options, on_file)
         except GuadalError as exc:
             raise fail(exc)
@@ -70,8 +99,14 @@ def register(app: typer.Typer) -> None:
 
 
 #: shorter headers where the terminal is narrow; files and --csv/--json keep the CSV names
-SHORT = {"total_distance": "distance m", "time_s": "time s", "coverage": "cover", "vehicles": "veh",
-         "gps_offtrack_mean_m": "gps off m", "gps_offtrack_max_m": "gps max m"}
+SHORT = {
+    "total_distance": "distance m",
+    "time_s": "time s",
+    "coverage": "cover",
+    "vehicles": "veh",
+    "gps_offtrack_mean_m": "gps off m",
+    "gps_offtrack_max_m": "gps max m",
+}
 
 
 def _show(title: str, columns: list[str], rows: list[list[str]], drop_constant=()) -> None:
@@ -90,8 +125,13 @@ def _show(title: str, columns: list[str], rows: list[list[str]], drop_constant=(
         numeric = bool(cells) and all(_numeric(c) for c in cells)
         header = SHORT.get(columns[i], columns[i])
         widest = max([len(header), *(len(c) for c in cells)])
-        table.add_column(header, no_wrap=True, overflow="ellipsis", justify="right" if numeric else "left",
-                         min_width=min(widest, 30) if i == 0 else None)
+        table.add_column(
+            header,
+            no_wrap=True,
+            overflow="ellipsis",
+            justify="right" if numeric else "left",
+            min_width=min(widest, 30) if i == 0 else None,
+        )
     status = columns.index("status") if "status" in columns else None
     for row in rows:
         style = None if status is None or row[status] == "complete" else "yellow"

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import signal
 import sys
-from typing import Optional
 
 import typer
 
@@ -17,7 +16,9 @@ def _latlon(text: str, option: str) -> tuple[float, float]:
     try:
         lat, lon = (float(part) for part in text.split(","))
     except ValueError:
-        raise GuadalError(f"{option} {text!r} must be LAT,LON in decimal degrees, e.g. 37.41795,-5.98345.") from None
+        raise GuadalError(
+            f"{option} {text!r} must be LAT,LON in decimal degrees, e.g. 37.41795,-5.98345."
+        ) from None
     if not (-90 <= lat <= 90 and -180 <= lon <= 180):
         raise GuadalError(f"{option} {text!r} is outside -90..90 latitude / -180..180 longitude.")
     return lat, lon
@@ -39,20 +40,40 @@ def _host_port(text: str) -> tuple[str, int]:
 
 
 def sitl(
-    vehicles: int = typer.Option(1, "--vehicles", "-n", help="Number of boats; vehicle i gets system id i+1."),
-    home: str = typer.Option("37.41795,-5.98345", "--home", help="LAT,LON of vehicle 1; the others start 5 m apart eastwards."),
-    homes: Optional[str] = typer.Option(None, "--homes", help="LAT,LON;LAT,LON;... one home per vehicle (overrides --home)."),
+    vehicles: int = typer.Option(
+        1, "--vehicles", "-n", help="Number of boats; vehicle i gets system id i+1."
+    ),
+    home: str = typer.Option(
+        "37.41795,-5.98345", "--home", help="LAT,LON of vehicle 1; the others start 5 m apart eastwards."
+    ),
+    homes: str | None = typer.Option(
+        None, "--homes", help="LAT,LON;LAT,LON;... one home per vehicle (overrides --home)."
+    ),
     speedup: float = typer.Option(1.0, "--speedup", help="Simulated seconds per wall second."),
-    base_port: int = typer.Option(5760, "--base-port", help="TCP port of vehicle 1; vehicle i listens on base+10*i. 0 picks free ports."),
+    base_port: int = typer.Option(
+        5760, "--base-port", help="TCP port of vehicle 1; vehicle i listens on base+10*i. 0 picks free ports."
+    ),
     host: str = typer.Option("127.0.0.1", "--host", help="Address the TCP servers listen on."),
-    max_speed: float = typer.Option(0.5, "--max-speed", help="Top speed of the hull in m/s (also WP_SPEED's default)."),
-    gps_noise: float = typer.Option(0.0, "--gps-noise", help="Standard deviation of reported GPS positions, metres."),
+    max_speed: float = typer.Option(
+        0.5, "--max-speed", help="Top speed of the hull in m/s (also WP_SPEED's default)."
+    ),
+    gps_noise: float = typer.Option(
+        0.0, "--gps-noise", help="Standard deviation of reported GPS positions, metres."
+    ),
     current: str = typer.Option("0,0", "--current", help="Water current E,N in m/s that drifts every boat."),
-    udp_out: Optional[str] = typer.Option(None, "--udp-out", help="Also stream to HOST:PORT (+10*i for vehicle i)."),
-    serial: Optional[list[str]] = typer.Option(None, "--serial", help="Serial device per vehicle (repeat), or 'pty' for a fresh pseudo-terminal each."),
+    udp_out: str | None = typer.Option(
+        None, "--udp-out", help="Also stream to HOST:PORT (+10*i for vehicle i)."
+    ),
+    serial: list[str] | None = typer.Option(
+        None,
+        "--serial",
+        help="Serial device per vehicle (repeat), or 'pty' for a fresh pseudo-terminal each.",
+    ),
     baud: int = typer.Option(115200, "--baud", help="Baud rate for --serial devices."),
     seed: int = typer.Option(0, "--seed", help="Seed of the GPS noise."),
-    max_rate: float = typer.Option(20.0, "--max-rate", help="Cap on wall-clock messages per second of each telemetry stream."),
+    max_rate: float = typer.Option(
+        20.0, "--max-rate", help="Cap on wall-clock messages per second of each telemetry stream."
+    ),
 ) -> None:
     """Run N emulated MAVLink boats; prints one JSON line when every endpoint is listening."""
     # a launcher may signal us while we start: remember it, and stop quietly once started
@@ -63,7 +84,9 @@ def sitl(
         fields = dict(
             vehicles=vehicles,
             home=_latlon(home, "--home"),
-            homes=[_latlon(part.strip(), "--homes") for part in homes.split(";") if part.strip()] if homes else None,
+            homes=[_latlon(part.strip(), "--homes") for part in homes.split(";") if part.strip()]
+            if homes
+            else None,
             speedup=speedup,
             base_port=base_port,
             host=host,
@@ -78,7 +101,11 @@ def sitl(
         )
         if gps_noise < 0:
             raise GuadalError(f"--gps-noise must be zero or positive (got {gps_noise}).")
-        from ..sitl.server import SitlOptions, SitlServer, stats  # after the cheap checks: pymavlink is slow to import
+        from ..sitl.server import (  # after the cheap checks: pymavlink is slow to import
+            SitlOptions,
+            SitlServer,
+            stats,
+        )
 
         server = SitlServer(SitlOptions(**fields))
         ready = server.open()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -14,8 +13,10 @@ _STATE_HELP = "Folder of the stack's state file and logs (default: ~/.local/stat
 
 
 def register(app: typer.Typer) -> None:
-    stack_app = typer.Typer(help="Start and stop a sitl stack: broker, MAVLink emulator, one bridge per boat.",
-                            no_args_is_help=True)
+    stack_app = typer.Typer(
+        help="Start and stop a sitl stack: broker, MAVLink emulator, one bridge per boat.",
+        no_args_is_help=True,
+    )
     app.add_typer(stack_app, name="stack")
 
     @stack_app.command("up")
@@ -23,11 +24,17 @@ def register(app: typer.Typer) -> None:
         map_path: Path = typer.Option(..., "--map", help="guadal map file the bridges plan on."),
         vehicles: int = typer.Option(3, "--vehicles", min=1, max=64, help="Number of boats."),
         speedup: float = typer.Option(10.0, "--speedup", min=0.01, help="Emulator time speed-up."),
-        broker_port: int = typer.Option(0, "--broker-port", min=0, max=65535, help="Broker port (0: a free one)."),
-        broker: str = typer.Option("auto", "--broker", help="auto (Mosquitto if installed), mosquitto or embedded."),
+        broker_port: int = typer.Option(
+            0, "--broker-port", min=0, max=65535, help="Broker port (0: a free one)."
+        ),
+        broker: str = typer.Option(
+            "auto", "--broker", help="auto (Mosquitto if installed), mosquitto or embedded."
+        ),
         fleet: str = typer.Option("guadal", "--fleet", help="Topic prefix of the stack."),
-        failsafe_timeout: float = typer.Option(30.0, "--failsafe-timeout", min=0.1, help="Bridges' comms-loss failsafe, seconds."),
-        state_dir: Optional[Path] = typer.Option(None, "--state-dir", help=_STATE_HELP),
+        failsafe_timeout: float = typer.Option(
+            30.0, "--failsafe-timeout", min=0.1, help="Bridges' comms-loss failsafe, seconds."
+        ),
+        state_dir: Path | None = typer.Option(None, "--state-dir", help=_STATE_HELP),
         as_json: bool = typer.Option(False, "--json", help="Print the stack as JSON."),
     ) -> None:
         """Start the stack in the background and print the broker URL once every bridge is online."""
@@ -36,21 +43,33 @@ def register(app: typer.Typer) -> None:
         try:
             if not map_path.is_file():
                 raise GuadalError(f"--map: map file '{map_path}' does not exist.")
-            stack = stack_up(map_path=map_path, vehicles=vehicles, speedup=speedup, broker_port=broker_port,
-                             state_dir=state_dir, fleet=fleet, broker_kind=broker, failsafe_timeout=failsafe_timeout)
+            stack = stack_up(
+                map_path=map_path,
+                vehicles=vehicles,
+                speedup=speedup,
+                broker_port=broker_port,
+                state_dir=state_dir,
+                fleet=fleet,
+                broker_kind=broker,
+                failsafe_timeout=failsafe_timeout,
+            )
         except GuadalError as exc:
             raise fail(exc)
         if as_json:
             print_json({**stack.info, "state_dir": str(stack.state_dir), "pids": stack.pids()})
             return
-        console.print(f"stack up: {vehicles} boats, {stack.info['broker']['kind']} broker, state in {stack.state_dir}")
-        console.print(f"broker: {stack.broker_url}  (missions: backend: {{level: sitl, host: {stack.broker_host}, "
-                      f"port: {stack.broker_port}, fleet: {fleet}}})")
+        console.print(
+            f"stack up: {vehicles} boats, {stack.info['broker']['kind']} broker, state in {stack.state_dir}"
+        )
+        console.print(
+            f"broker: {stack.broker_url}  (missions: backend: {{level: sitl, host: {stack.broker_host}, "
+            f"port: {stack.broker_port}, fleet: {fleet}}})"
+        )
         typer.echo(stack.broker_url)
 
     @stack_app.command("down")
     def down(
-        state_dir: Optional[Path] = typer.Option(None, "--state-dir", help=_STATE_HELP),
+        state_dir: Path | None = typer.Option(None, "--state-dir", help=_STATE_HELP),
         grace: float = typer.Option(5.0, "--grace", min=0.0, help="Seconds between SIGTERM and SIGKILL."),
     ) -> None:
         """Stop every process of the stack (SIGTERM, then SIGKILL after the grace period)."""
@@ -67,7 +86,7 @@ def register(app: typer.Typer) -> None:
 
     @stack_app.command("status")
     def status(
-        state_dir: Optional[Path] = typer.Option(None, "--state-dir", help=_STATE_HELP),
+        state_dir: Path | None = typer.Option(None, "--state-dir", help=_STATE_HELP),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
     ) -> None:
         """The recorded stack's processes and whether each is alive."""

@@ -28,7 +28,9 @@ class GPConfig(BaseModel):
     noise_std: float = Field(default=0.0, ge=0, description="Std of synthetic measurement noise.")
     kernel: KernelConfig = KernelConfig()
     prior_mean: float = 0.0
-    fit_every: int = Field(default=0, ge=0, description="Re-fit kernel hyperparameters every N updates (0: never).")
+    fit_every: int = Field(
+        default=0, ge=0, description="Re-fit kernel hyperparameters every N updates (0: never)."
+    )
 
 
 class GPEnvironment(Environment):
@@ -50,7 +52,10 @@ class GPEnvironment(Environment):
         self._truth = (
             None
             if self._truth_plugin is None
-            else np.asarray(self._truth_plugin.generate(self.graph, np.random.default_rng(truth_seq), self.base_dir), float)
+            else np.asarray(
+                self._truth_plugin.generate(self.graph, np.random.default_rng(truth_seq), self.base_dir),
+                float,
+            )
         )
         self._noise_rng = np.random.default_rng(noise_seq)
         self.model.kernel = self.config.kernel
@@ -59,7 +64,9 @@ class GPEnvironment(Environment):
 
     def sense(self, vehicle: int, node: int) -> float:
         if self._truth is None:
-            raise GuadalError("environment.ground_truth is null, so measurements must come from the vehicles' sensors.")
+            raise GuadalError(
+                "environment.ground_truth is null, so measurements must come from the vehicles' sensors."
+            )
         value = float(self._truth[node])
         if self.config.noise_std > 0:
             value += float(self._noise_rng.normal(0.0, self.config.noise_std))
@@ -77,7 +84,9 @@ class GPEnvironment(Environment):
 
     def metrics(self) -> dict[str, float]:
         std = self.model.std
-        rmse = math.nan if self._truth is None else float(np.sqrt(np.mean((self.model.mean - self._truth) ** 2)))
+        rmse = (
+            math.nan if self._truth is None else float(np.sqrt(np.mean((self.model.mean - self._truth) ** 2)))
+        )
         return {"rmse": rmse, "mean_std": float(std.mean()), "max_std": float(std.max())}
 
     @property

@@ -35,7 +35,7 @@ class ShekelField:
         min_width: float = Field(default=0.2, gt=0)
         max_width: float = Field(default=1.0, gt=0)
 
-    def __init__(self, config: "ShekelField.Config"):
+    def __init__(self, config: ShekelField.Config):
         if config.max_width < config.min_width:
             raise GuadalError("environment.ground_truth.max_width must be at least min_width.")
         self.config = config
@@ -44,7 +44,9 @@ class ShekelField:
         xy = graph.xy - graph.xy.min(axis=0)
         scale = 10.0 / max(float(xy.max()), 1e-9)
         pts = xy * scale
-        centres = pts[rng.choice(graph.n_nodes, size=self.config.peaks, replace=graph.n_nodes < self.config.peaks)]
+        centres = pts[
+            rng.choice(graph.n_nodes, size=self.config.peaks, replace=graph.n_nodes < self.config.peaks)
+        ]
         widths = rng.uniform(self.config.min_width, self.config.max_width, size=self.config.peaks)
         d2 = ((pts[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
         return _normalise((1.0 / (widths[None, :] + d2)).sum(axis=1))
@@ -56,7 +58,7 @@ class GPPriorField:
     class Config(_Config):
         length_scale: float = Field(default=30.0, gt=0, description="Correlation length, metres.")
 
-    def __init__(self, config: "GPPriorField.Config"):
+    def __init__(self, config: GPPriorField.Config):
         self.config = config
 
     def generate(self, graph: NavGraph, rng: np.random.Generator, base_dir=None) -> np.ndarray:
@@ -81,7 +83,7 @@ class FileField:
         path: str = Field(description="CSV grid with the map's shape, relative to the mission file.")
         normalise: bool = False
 
-    def __init__(self, config: "FileField.Config"):
+    def __init__(self, config: FileField.Config):
         self.config = config
 
     def generate(self, graph: NavGraph, rng: np.random.Generator, base_dir=None) -> np.ndarray:
@@ -95,12 +97,16 @@ class FileField:
         try:
             grid = np.genfromtxt(path, delimiter=delimiter, dtype=float)
         except ValueError as exc:
-            raise GuadalError(f"environment.ground_truth.path: '{path}' is not a grid of numbers ({exc}).") from exc
+            raise GuadalError(
+                f"environment.ground_truth.path: '{path}' is not a grid of numbers ({exc})."
+            ) from exc
         if grid.shape != graph.map.shape:
             raise GuadalError(
                 f"environment.ground_truth.path: '{path}' has shape {grid.shape}, the map is {graph.map.shape}; they must match."
             )
         values = grid[graph.rows, graph.cols]
         if not np.all(np.isfinite(values)):
-            raise GuadalError(f"environment.ground_truth.path: '{path}' has non-numeric values on water cells.")
+            raise GuadalError(
+                f"environment.ground_truth.path: '{path}' has non-numeric values on water cells."
+            )
         return _normalise(values) if self.config.normalise else values

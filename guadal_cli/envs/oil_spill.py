@@ -41,22 +41,33 @@ class OilSource(Site):
     mass: float = Field(default=1000.0, ge=0, description="Units released at start_s.")
     rate: float = Field(default=0.0, ge=0, description="Units per second released from start_s on.")
     start_s: float = Field(default=0.0, ge=0, description="Mission time of the release.")
-    duration_s: float | None = Field(default=None, gt=0, description="How long the rate lasts; null: to the end.")
-    radius_m: float = Field(default=5.0, ge=0, description="The release is shared equally by the nodes within this radius.")
+    duration_s: float | None = Field(
+        default=None, gt=0, description="How long the rate lasts; null: to the end."
+    )
+    radius_m: float = Field(
+        default=5.0, ge=0, description="The release is shared equally by the nodes within this radius."
+    )
 
 
 class OilSpillConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     sources: list[OilSource] = Field(
-        default=1, validate_default=True,
+        default=1,
+        validate_default=True,
         description="Number of random sources (default release) on the largest water body, or a list of sources.",
     )
     diffusivity: float = Field(default=0.05, ge=0, description="Horizontal diffusivity D, m2/s.")
     drift: DriftConfig = DriftConfig()
     decay_rate: float = Field(default=0.0, ge=0, description="First-order loss rate k, 1/s (0: no sink).")
-    threshold: float = Field(default=0.1, gt=0, description="Concentration above which water counts as contaminated.")
-    view_radius_m: float = Field(default=10.0, ge=0, description="A sample overwrites the observed map within this radius.")
-    stale_after_s: float = Field(default=600.0, gt=0, description="An observation older than this is a lead worth renewing.")
+    threshold: float = Field(
+        default=0.1, gt=0, description="Concentration above which water counts as contaminated."
+    )
+    view_radius_m: float = Field(
+        default=10.0, ge=0, description="A sample overwrites the observed map within this radius."
+    )
+    stale_after_s: float = Field(
+        default=600.0, gt=0, description="An observation older than this is a lead worth renewing."
+    )
     max_substep_s: float = Field(default=30.0, gt=0, description="Longest integration sub-step, seconds.")
 
     @field_validator("sources", mode="before")
@@ -96,7 +107,9 @@ class OilSpillEnvironment(Environment):
     def reset(self, seed: int) -> None:
         rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
         g = self.graph
-        self._sources = list(zip(place(self.config.sources, g, "environment.sources", rng), self.config.sources))
+        self._sources = list(
+            zip(place(self.config.sources, g, "environment.sources", rng), self.config.sources)
+        )
         self._footprints = [g.nodes_within(n, s.radius_m) for n, s in self._sources]
         self.mass = np.zeros(g.n_nodes)
         self.released = 0.0
@@ -130,7 +143,9 @@ class OilSpillEnvironment(Environment):
         c = self.mass / self._area
         a, b, w = self._face_a, self._face_b, self._face_speed
         upwind = np.where(w > 0, c[a], c[b])
-        flux = self._dx * (w * upwind - self.config.diffusivity * (c[b] - c[a]) / self._dx)  # a -> b, per second
+        flux = self._dx * (
+            w * upwind - self.config.diffusivity * (c[b] - c[a]) / self._dx
+        )  # a -> b, per second
         moved = flux * dt
         n = self.graph.n_nodes
         self.mass = self.mass - np.bincount(a, moved, minlength=n) + np.bincount(b, moved, minlength=n)

@@ -44,11 +44,16 @@ class TrashConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     items: int = Field(default=40, ge=1, le=100_000, description="Number of floating items.")
     spots: list[Site] = Field(
-        default=3, validate_default=True,
+        default=3,
+        validate_default=True,
         description="Number of random spots on the largest water body, or a list of {node}|{row, col}|{lat, lon}|{} (random).",
     )
-    spot_radius_m: float = Field(default=8.0, gt=0, description="Spread (standard deviation, metres) of items around a spot.")
-    vision_radius_m: float = Field(default=10.0, ge=0, description="Vehicles see items within this many metres of their node.")
+    spot_radius_m: float = Field(
+        default=8.0, gt=0, description="Spread (standard deviation, metres) of items around a spot."
+    )
+    vision_radius_m: float = Field(
+        default=10.0, ge=0, description="Vehicles see items within this many metres of their node."
+    )
     capacity: int | None = Field(default=None, ge=1, description="Items a vehicle can hold; null: unlimited.")
     drift: DriftConfig = DriftConfig()
     jitter: float = Field(default=0.0, ge=0, description="Random-walk strength of the drift, m/sqrt(s).")
@@ -63,7 +68,12 @@ class TrashEnvironment(Environment):
     Config = TrashConfig
     provides = frozenset({"belief", "observed", "age", "evidence"})
     metric_names = (
-        "fraction_collected", "items_collected", "items_detected", "distance_per_item", "time_to_50pct", "time_to_90pct",
+        "fraction_collected",
+        "items_collected",
+        "items_detected",
+        "distance_per_item",
+        "time_to_50pct",
+        "time_to_90pct",
     )
 
     def __init__(self, config: TrashConfig, graph, base_dir=None):
@@ -120,7 +130,9 @@ class TrashEnvironment(Environment):
         for _ in range(n if moving else 0):
             step = np.broadcast_to(self._velocity * h, self.items_xy.shape).copy()
             if self.config.jitter > 0:
-                step += self.config.jitter * math.sqrt(h) * self._drift_rng.standard_normal(self.items_xy.shape)
+                step += (
+                    self.config.jitter * math.sqrt(h) * self._drift_rng.standard_normal(self.items_xy.shape)
+                )
             step[self.collected] = 0.0
             self.items_xy = self._slide(self.items_xy, step)
         if time_s > self._time:
@@ -182,7 +194,9 @@ class TrashEnvironment(Environment):
         self._history.forget()
 
     def observation_fields(self) -> dict[str, np.ndarray]:
-        belief = np.bincount(self._last_seen[self._last_seen >= 0], minlength=self.graph.n_nodes).astype(float)
+        belief = np.bincount(self._last_seen[self._last_seen >= 0], minlength=self.graph.n_nodes).astype(
+            float
+        )
         observed = ~np.isnan(self._observed_at)
         return {
             "belief": belief,

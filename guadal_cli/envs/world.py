@@ -36,9 +36,15 @@ class Site(BaseModel):
 
     @model_validator(mode="after")
     def _one_form(self):
-        forms = [self.node is not None, self.row is not None or self.col is not None, self.lat is not None or self.lon is not None]
+        forms = [
+            self.node is not None,
+            self.row is not None or self.col is not None,
+            self.lat is not None or self.lon is not None,
+        ]
         if sum(forms) > 1:
-            raise ValueError("give one of {node}, {row, col} or {lat, lon} (or none for a random place), not several")
+            raise ValueError(
+                "give one of {node}, {row, col} or {lat, lon} (or none for a random place), not several"
+            )
         if forms[1] and (self.row is None or self.col is None):
             raise ValueError("a grid position needs both row and col")
         if forms[2] and (self.lat is None or self.lon is None):
@@ -55,17 +61,23 @@ class Site(BaseModel):
             return None
         if self.node is not None:
             if self.node >= graph.n_nodes:
-                raise GuadalError(f"{where}: node {self.node} does not exist (nodes are 0..{graph.n_nodes - 1}).")
+                raise GuadalError(
+                    f"{where}: node {self.node} does not exist (nodes are 0..{graph.n_nodes - 1})."
+                )
             return self.node
         if self.row is not None:
             node = graph.node_at(self.row, self.col)
             if node is None:
-                raise GuadalError(f"{where}: cell ({self.row}, {self.col}) is land or off the grid; it must be water.")
+                raise GuadalError(
+                    f"{where}: cell ({self.row}, {self.col}) is land or off the grid; it must be water."
+                )
             return node
         rc = graph.map.rowcol_of(self.lat, self.lon)
         node = None if rc is None else graph.node_at(*rc)
         if node is None:
-            raise GuadalError(f"{where}: ({self.lat}, {self.lon}) is on land or outside the map; it must be water.")
+            raise GuadalError(
+                f"{where}: ({self.lat}, {self.lon}) is on land or outside the map; it must be water."
+            )
         return node
 
 
@@ -96,7 +108,10 @@ class DriftConfig(BaseModel):
     current: tuple[float, float] = Field(default=(0.0, 0.0), description="Water current [east, north], m/s.")
     wind: tuple[float, float] = Field(default=(0.0, 0.0), description="Wind at 10 m [east, north], m/s.")
     wind_factor: float = Field(
-        default=0.03, ge=0, le=1, description="Share of the wind speed a floating object drifts with (about 3% for oil and litter)."
+        default=0.03,
+        ge=0,
+        le=1,
+        description="Share of the wind speed a floating object drifts with (about 3% for oil and litter).",
     )
 
     @property

@@ -117,13 +117,17 @@ def stop_process(process: subprocess.Popen, grace: float = 3.0) -> None:
         process.wait(5)
 
 
-def wait_until_listening(host: str, port: int, process: subprocess.Popen, timeout: float, what: str, log: Path | None) -> None:
+def wait_until_listening(
+    host: str, port: int, process: subprocess.Popen, timeout: float, what: str, log: Path | None
+) -> None:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if process.poll() is not None:
             tail = log.read_text(errors="replace").strip().splitlines()[-3:] if log and log.exists() else []
-            raise GuadalError(f"the {what} exited with code {process.returncode} before listening on port {port}"
-                              + (f" ({' / '.join(tail)})." if tail else "."))
+            raise GuadalError(
+                f"the {what} exited with code {process.returncode} before listening on port {port}"
+                + (f" ({' / '.join(tail)})." if tail else ".")
+            )
         if port_accepts(host, port):
             return
         time.sleep(0.05)
@@ -159,7 +163,9 @@ def start_broker(
         raise GuadalError(f"broker kind '{kind}' is unknown (allowed: {', '.join(BROKER_KINDS)}).")
     binary = mosquitto_binary()
     if kind == "mosquitto" and binary is None:
-        raise GuadalError("broker 'mosquitto' was asked for, but no mosquitto executable is installed; use 'embedded'.")
+        raise GuadalError(
+            "broker 'mosquitto' was asked for, but no mosquitto executable is installed; use 'embedded'."
+        )
     chosen = "mosquitto" if (kind == "mosquitto" or (kind == "auto" and binary)) else "embedded"
     port = int(port) or free_port(host)
     own = workdir is None
@@ -243,7 +249,9 @@ def run_embedded(host: str, port: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m guadal_cli.fleet.broker", description="guadal's embedded MQTT broker")
+    parser = argparse.ArgumentParser(
+        prog="python -m guadal_cli.fleet.broker", description="guadal's embedded MQTT broker"
+    )
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=1883)
     args = parser.parse_args(argv)

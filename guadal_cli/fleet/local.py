@@ -42,7 +42,9 @@ class Vehicle:
             return 0.0
         path = self.graph.shortest_path(self.node, target)
         if len(path) < 2:
-            raise GuadalError(f"vehicle {self.id} cannot reach node {target} from node {self.node} over water.")
+            raise GuadalError(
+                f"vehicle {self.id} cannot reach node {target} from node {self.node} over water."
+            )
         nxt = path[1]
         length = self.graph.edge_length(self.node, nxt)
         if length > self.remaining + 1e-9:
@@ -84,7 +86,9 @@ class LocalFleet(Fleet):
 
     def _cannot_move(self, vehicle: Vehicle) -> bool:
         nbrs = self.graph.neighbors(vehicle.node)
-        return not nbrs or min(self.graph.edge_length(vehicle.node, n) for n in nbrs) > vehicle.remaining + 1e-9
+        return (
+            not nbrs or min(self.graph.edge_length(vehicle.node, n) for n in nbrs) > vehicle.remaining + 1e-9
+        )
 
     def take_measurement(self, vehicles: Sequence[int] | None = None) -> list[Measurement]:
         ids = range(self.n_vehicles) if vehicles is None else vehicles
@@ -93,8 +97,12 @@ class LocalFleet(Fleet):
             node = self.vehicles[vid].node
             out.append(
                 Measurement(
-                    vehicle=vid, node=node, value=float(self.sensor(vid, node)),
-                    lat=float(self.graph.lat[node]), lon=float(self.graph.lon[node]), time_s=self._time,
+                    vehicle=vid,
+                    node=node,
+                    value=float(self.sensor(vid, node)),
+                    lat=float(self.graph.lat[node]),
+                    lon=float(self.graph.lon[node]),
+                    time_s=self._time,
                 )
             )
         return out

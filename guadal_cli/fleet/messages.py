@@ -66,7 +66,9 @@ def parse_topic(fleet: str, name: str) -> tuple[int | None, str]:
             return int(rest[1]), rest[2]
         except ValueError as exc:
             raise ProtocolError(f"topic '{name}' has vehicle id '{rest[1]}'; ids are whole numbers.") from exc
-    raise ProtocolError(f"topic '{name}' is not a guadal topic ({fleet}/vehicle/N/CHANNEL or {fleet}/planner/CHANNEL).")
+    raise ProtocolError(
+        f"topic '{name}' is not a guadal topic ({fleet}/vehicle/N/CHANNEL or {fleet}/planner/CHANNEL)."
+    )
 
 
 def encode(kind: str, **fields) -> bytes:
@@ -85,12 +87,16 @@ def decode(payload: bytes, expected: set[str] | None = None) -> dict:
     if not isinstance(data, dict):
         raise ProtocolError("payload must be a JSON object.")
     if data.get("v") != PROTOCOL_VERSION:
-        raise ProtocolError(f"payload has protocol version {data.get('v')!r}; this guadal speaks version {PROTOCOL_VERSION}.")
+        raise ProtocolError(
+            f"payload has protocol version {data.get('v')!r}; this guadal speaks version {PROTOCOL_VERSION}."
+        )
     kind = data.get("type")
     if kind not in SCHEMAS:
         raise ProtocolError(f"unknown message type {kind!r} (known: {', '.join(sorted(SCHEMAS))}).")
     if expected is not None and kind not in expected:
-        raise ProtocolError(f"message type '{kind}' is not expected here (expected: {', '.join(sorted(expected))}).")
+        raise ProtocolError(
+            f"message type '{kind}' is not expected here (expected: {', '.join(sorted(expected))})."
+        )
     for name, types in SCHEMAS[kind].items():
         value = data.get(name)
         if isinstance(value, bool) or not isinstance(value, types):
@@ -99,9 +105,13 @@ def decode(payload: bytes, expected: set[str] | None = None) -> dict:
         if isinstance(value, float) and not math.isfinite(value):
             raise ProtocolError(f"'{kind}' message field '{name}' must be finite (got {value!r}).")
     if kind == "ack" and data["status"] not in ACK_TYPES:
-        raise ProtocolError(f"ack status {data['status']!r} is unknown (known: {', '.join(sorted(ACK_TYPES))}).")
+        raise ProtocolError(
+            f"ack status {data['status']!r} is unknown (known: {', '.join(sorted(ACK_TYPES))})."
+        )
     if kind == "status" and data["state"] not in STATUS_STATES:
-        raise ProtocolError(f"status state {data['state']!r} is unknown (known: {', '.join(sorted(STATUS_STATES))}).")
+        raise ProtocolError(
+            f"status state {data['state']!r} is unknown (known: {', '.join(sorted(STATUS_STATES))})."
+        )
     if "seq" in data and data["seq"] < 0:
         raise ProtocolError(f"'{kind}' message has negative seq {data['seq']}.")
     return data

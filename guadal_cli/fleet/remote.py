@@ -56,28 +56,42 @@ class RemoteConfig(BaseModel):
     port: int = Field(default=1883, ge=1, le=65535, description="MQTT broker port (8883 is usual with TLS).")
     username: str | None = Field(default=None, description="Broker user name.")
     password: str | None = Field(default=None, description="Broker password (prefer password_env).")
-    password_env: str | None = Field(default=None, description="Environment variable holding the broker password.")
+    password_env: str | None = Field(
+        default=None, description="Environment variable holding the broker password."
+    )
     tls: bool = Field(default=False, description="Connect with TLS.")
-    ca_file: str | None = Field(default=None, description="CA certificate file for TLS; default: the system's.")
+    ca_file: str | None = Field(
+        default=None, description="CA certificate file for TLS; default: the system's."
+    )
     client_id: str | None = Field(default=None, description="MQTT client id; default: a unique one per run.")
     keepalive: int = Field(default=10, ge=1, le=3600, description="MQTT keepalive, seconds.")
-    fleet: str = Field(default="guadal", min_length=1, description="Topic prefix shared with the bridges (--fleet).")
+    fleet: str = Field(
+        default="guadal", min_length=1, description="Topic prefix shared with the bridges (--fleet)."
+    )
     measurements: Literal["synthetic", "vehicle"] = Field(
         default="synthetic", description="synthetic: the environment's sensor; vehicle: ask each bridge."
     )
-    connect_timeout: float = Field(default=20.0, gt=0, description="Seconds to reach the broker and see every vehicle online.")
-    reset_timeout: float = Field(default=300.0, gt=0, description="Seconds for the vehicles to reach their start nodes.")
+    connect_timeout: float = Field(
+        default=20.0, gt=0, description="Seconds to reach the broker and see every vehicle online."
+    )
+    reset_timeout: float = Field(
+        default=300.0, gt=0, description="Seconds for the vehicles to reach their start nodes."
+    )
     hop_timeout: float = Field(default=60.0, gt=0, description="Seconds for one hop (one graph edge).")
     measure_timeout: float = Field(default=30.0, gt=0, description="Seconds for a measurement to come back.")
     ping_interval: float = Field(
-        default=1.0, gt=0, description="Seconds between messages to each bridge: its unanswered command again, or a ping."
+        default=1.0,
+        gt=0,
+        description="Seconds between messages to each bridge: its unanswered command again, or a ping.",
     )
 
     def broker_password(self) -> str | None:
         if self.password_env:
             value = os.environ.get(self.password_env)
             if value is None:
-                raise GuadalError(f"backend.password_env: environment variable '{self.password_env}' is not set.")
+                raise GuadalError(
+                    f"backend.password_env: environment variable '{self.password_env}' is not set."
+                )
             return value
         return self.password
 
@@ -132,8 +146,13 @@ class RemoteFleet(Fleet):
     """N vehicles behind MQTT bridges, driven hop by hop like the local fleet."""
 
     def __init__(
-        self, graph: NavGraph, n_vehicles: int, max_distance: float, sensor: Sensor | None,
-        config: RemoteConfig, on_close: Callable[[], None] | None = None,
+        self,
+        graph: NavGraph,
+        n_vehicles: int,
+        max_distance: float,
+        sensor: Sensor | None,
+        config: RemoteConfig,
+        on_close: Callable[[], None] | None = None,
     ):
         self.graph = graph
         self.n_vehicles = int(n_vehicles)
@@ -172,8 +191,12 @@ class RemoteFleet(Fleet):
             try:
                 client.tls_set(ca_certs=cfg.ca_file, cert_reqs=ssl.CERT_REQUIRED)
             except (OSError, ssl.SSLError, ValueError) as exc:
-                raise GuadalError(f"backend.ca_file: cannot load the CA certificate '{cfg.ca_file}' ({exc}).") from exc
-        client.will_set(msg.topic(cfg.fleet, None, "status"), msg.encode("status", state="offline"), qos=1, retain=True)
+                raise GuadalError(
+                    f"backend.ca_file: cannot load the CA certificate '{cfg.ca_file}' ({exc})."
+                ) from exc
+        client.will_set(
+            msg.topic(cfg.fleet, None, "status"), msg.encode("status", state="offline"), qos=1, retain=True
+        )
         client.reconnect_delay_set(min_delay=0.1, max_delay=2)
         client.max_inflight_messages_set(100)
         client.on_connect = self._on_connect
@@ -223,11 +246,17 @@ class RemoteFleet(Fleet):
             return
         msg.no_delay(client)
         fleet = self.config.fleet
-        client.subscribe([
-            (f"{fleet}/vehicle/+/ack", 1), (f"{fleet}/vehicle/+/measurement", 1),
-            (f"{fleet}/vehicle/+/status", 1), (f"{fleet}/vehicle/+/telemetry", 0),
-        ])
-        client.publish(msg.topic(fleet, None, "status"), msg.encode("status", state="online"), qos=1, retain=True)
+        client.subscribe(
+            [
+                (f"{fleet}/vehicle/+/ack", 1),
+                (f"{fleet}/vehicle/+/measurement", 1),
+                (f"{fleet}/vehicle/+/status", 1),
+                (f"{fleet}/vehicle/+/telemetry", 0),
+            ]
+        )
+        client.publish(
+            msg.topic(fleet, None, "status"), msg.encode("status", state="online"), qos=1, retain=True
+        )
         with self._cond:
             self._connected = True
             outstanding = [c for v in self.vehicles for c in (v.goto, v.measure) if c is not None and c.open]
@@ -260,7 +289,12 @@ class RemoteFleet(Fleet):
         except Exception as exc:  # a bug here must not kill paho's network thread
             self._drop("error", f"{message.topic}: {type(exc).__name__}: {exc}")
 
-    _EXPECTED = {"ack": {"ack"}, "telemetry": {"telemetry"}, "measurement": {"measurement"}, "status": {"status"}}
+    _EXPECTED = {
+        "ack": {"ack"},
+        "telemetry": {"telemetry"},
+        "measurement": {"measurement"},
+        "status": {"status"},
+    }
 
     def _handle(self, name: str, payload: bytes) -> None:
         try:
@@ -270,7 +304,9 @@ class RemoteFleet(Fleet):
         if vid is None or channel not in self._EXPECTED:
             return self._drop("topic", f"topic '{name}' is not one the planner listens to.")
         if not 0 <= vid < self.n_vehicles:
-            return self._drop("unknown_vehicle", f"{name}: vehicle {vid} is not in this fleet (0..{self.n_vehicles - 1}).")
+            return self._drop(
+                "unknown_vehicle", f"{name}: vehicle {vid} is not in this fleet (0..{self.n_vehicles - 1})."
+            )
         try:
             data = msg.decode(payload, self._EXPECTED[channel])
         except msg.ProtocolError as exc:
@@ -283,7 +319,12 @@ class RemoteFleet(Fleet):
     def _clock(v: RemoteVehicle, data: dict) -> None:
         """Acks and measurements carry the vehicle's clock too: fresher than the last fix."""
         t = data.get("t")
-        if isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t) and (v.t is None or t > v.t):
+        if (
+            isinstance(t, (int, float))
+            and not isinstance(t, bool)
+            and math.isfinite(t)
+            and (v.t is None or t > v.t)
+        ):
             v.t = float(t)
 
     def _on_ack(self, v: RemoteVehicle, data: dict) -> None:
@@ -298,10 +339,14 @@ class RemoteFleet(Fleet):
             if v.measure is not None and v.measure.seq == seq:
                 if status in ("rejected", "failed") and v.measure.open:
                     v.measure.status, v.measure.reason = status, str(data.get("reason") or "no reason given")
-                    self._vehicle_done(v, f"vehicle {v.id} could not measure at node {v.measure.node}: {v.measure.reason}")
+                    self._vehicle_done(
+                        v, f"vehicle {v.id} could not measure at node {v.measure.node}: {v.measure.reason}"
+                    )
                 return  # an accepted measure is answered by a measurement
             kind = "stale" if seq <= v.seq else "unexpected_seq"
-            return self._drop(kind, f"vehicle {v.id}: '{status}' ack for seq {seq}, which is not the current command.")
+            return self._drop(
+                kind, f"vehicle {v.id}: '{status}' ack for seq {seq}, which is not the current command."
+            )
         if not cmd.open:
             return self._drop("duplicate", f"vehicle {v.id}: repeated '{status}' ack for seq {seq}.")
         if status == "accepted":
@@ -318,7 +363,9 @@ class RemoteFleet(Fleet):
     def _on_measurement(self, v: RemoteVehicle, data: dict) -> None:
         cmd = v.measure
         if cmd is None or cmd.seq != data["seq"]:
-            return self._drop("stale", f"vehicle {v.id}: measurement for seq {data['seq']}, which was not asked for now.")
+            return self._drop(
+                "stale", f"vehicle {v.id}: measurement for seq {data['seq']}, which was not asked for now."
+            )
         if not cmd.open:
             return self._drop("duplicate", f"vehicle {v.id}: repeated measurement for seq {data['seq']}.")
         self._clock(v, data)
@@ -327,7 +374,9 @@ class RemoteFleet(Fleet):
     def _on_telemetry(self, v: RemoteVehicle, data: dict) -> None:
         t, lat, lon = float(data["t"]), float(data["lat"]), float(data["lon"])
         if v.fix_t is not None and t < v.fix_t:
-            return self._drop("stale", f"vehicle {v.id}: telemetry at t={t} is older than the last fix (t={v.fix_t}).")
+            return self._drop(
+                "stale", f"vehicle {v.id}: telemetry at t={t} is older than the last fix (t={v.fix_t})."
+            )
         v.fix_t, v.fix = t, (lat, lon)
         self._clock(v, data)
         if v.t0 is not None:
@@ -337,7 +386,11 @@ class RemoteFleet(Fleet):
         state, before = data["state"], v.state
         v.state = state
         if state in ("offline", "failsafe") and v.t0 is not None:
-            why = "went offline (its bridge stopped or lost the broker)" if state == "offline" else "entered failsafe"
+            why = (
+                "went offline (its bridge stopped or lost the broker)"
+                if state == "offline"
+                else "entered failsafe"
+            )
             self._vehicle_done(v, f"vehicle {v.id} {why}; it takes no further part in the mission.")
         elif state != "offline" and before in ("unknown", "offline"):
             for cmd in (v.goto, v.measure):
@@ -355,19 +408,30 @@ class RemoteFleet(Fleet):
         cmd.sent_at = time.monotonic()
         self._client.publish(msg.topic(self.config.fleet, vid, "command"), cmd.payload, qos=1)
 
-    def _issue(self, v: RemoteVehicle, kind: str, node: int, count_distance: bool = True, **fields) -> Command:
+    def _issue(
+        self, v: RemoteVehicle, kind: str, node: int, count_distance: bool = True, **fields
+    ) -> Command:
         """A new command with the next seq, recorded as outstanding and published."""
         with self._send_lock:
             seq = v.next_seq()
-            cmd = Command(seq=seq, kind=kind, payload=msg.encode(kind, seq=seq, node=int(node), **fields),
-                          node=int(node), sent_at=time.monotonic(), from_node=v.node, count_distance=count_distance)
+            cmd = Command(
+                seq=seq,
+                kind=kind,
+                payload=msg.encode(kind, seq=seq, node=int(node), **fields),
+                node=int(node),
+                sent_at=time.monotonic(),
+                from_node=v.node,
+                count_distance=count_distance,
+            )
             with self._cond:
                 setattr(v, "goto" if kind == "goto" else "measure", cmd)
             self._send(v.id, cmd)
         return cmd
 
     def _goto(self, v: RemoteVehicle, node: int, count_distance: bool = True) -> None:
-        self._issue(v, "goto", node, count_distance, lat=float(self.graph.lat[node]), lon=float(self.graph.lon[node]))
+        self._issue(
+            v, "goto", node, count_distance, lat=float(self.graph.lat[node]), lon=float(self.graph.lon[node])
+        )
 
     def _keep_alive(self) -> None:
         """Re-send unanswered commands; ping the vehicles with nothing outstanding.
@@ -389,7 +453,9 @@ class RemoteFleet(Fleet):
                             self._send(v.id, cmd)
                     last = max([last_ping[v.id]] + [c.sent_at for c in (v.goto, v.measure) if c is not None])
                     if not open_cmds and now - last >= cfg.ping_interval:
-                        self._client.publish(msg.topic(cfg.fleet, v.id, "command"), msg.encode("ping", seq=v.next_seq()), qos=1)
+                        self._client.publish(
+                            msg.topic(cfg.fleet, v.id, "command"), msg.encode("ping", seq=v.next_seq()), qos=1
+                        )
                         last_ping[v.id] = now
 
     def _wait(self, predicate: Callable[[], bool], timeout: float) -> bool:
@@ -493,11 +559,19 @@ class RemoteFleet(Fleet):
         ids = list(range(self.n_vehicles) if vehicles is None else vehicles)
         if self.config.measurements == "synthetic":
             if self.sensor is None:
-                raise GuadalError("backend.measurements is 'synthetic', but the environment has no synthetic sensor.")
+                raise GuadalError(
+                    "backend.measurements is 'synthetic', but the environment has no synthetic sensor."
+                )
             now = self.mission_time
             return [
-                Measurement(vehicle=vid, node=(n := self.vehicles[vid].node), value=float(self.sensor(vid, n)),
-                            lat=float(self.graph.lat[n]), lon=float(self.graph.lon[n]), time_s=now)
+                Measurement(
+                    vehicle=vid,
+                    node=(n := self.vehicles[vid].node),
+                    value=float(self.sensor(vid, n)),
+                    lat=float(self.graph.lat[n]),
+                    lon=float(self.graph.lon[n]),
+                    time_s=now,
+                )
                 for vid in ids
             ]
         return self._measure_on_vehicles(ids)
@@ -526,8 +600,16 @@ class RemoteFleet(Fleet):
                 lat, lon = float(self.graph.lat[v.node]), float(self.graph.lon[v.node])
             t = r.get("t")
             time_s = t - v.t0 if isinstance(t, (int, float)) and v.t0 is not None else self.mission_time
-            out.append(Measurement(vehicle=v.id, node=v.node, value=float(r["value"]), lat=float(lat), lon=float(lon),
-                                   time_s=float(time_s)))
+            out.append(
+                Measurement(
+                    vehicle=v.id,
+                    node=v.node,
+                    value=float(r["value"]),
+                    lat=float(lat),
+                    lon=float(lon),
+                    time_s=float(time_s),
+                )
+            )
         return out
 
     @property
@@ -555,8 +637,11 @@ class RemoteFleet(Fleet):
         self._closed = True
         noisy = {k: n for k, n in self.dropped.items() if k not in _EXPECTED_DROPS}
         if noisy:
-            log.warning("ignored %d unusable MQTT messages during the mission (%s).", sum(noisy.values()),
-                        ", ".join(f"{k}: {n}" for k, n in sorted(noisy.items())))
+            log.warning(
+                "ignored %d unusable MQTT messages during the mission (%s).",
+                sum(noisy.values()),
+                ", ".join(f"{k}: {n}" for k, n in sorted(noisy.items())),
+            )
         try:
             self._stop.set()
             if self._started:
@@ -564,10 +649,22 @@ class RemoteFleet(Fleet):
                     self._keeper.join(5)
                 if self._connected:
                     with self._send_lock:
-                        infos = [self._client.publish(msg.topic(self.config.fleet, v.id, "command"),
-                                                      msg.encode("hold", seq=v.next_seq()), qos=1) for v in self.vehicles]
-                    infos.append(self._client.publish(msg.topic(self.config.fleet, None, "status"),
-                                                      msg.encode("status", state="offline"), qos=1, retain=True))
+                        infos = [
+                            self._client.publish(
+                                msg.topic(self.config.fleet, v.id, "command"),
+                                msg.encode("hold", seq=v.next_seq()),
+                                qos=1,
+                            )
+                            for v in self.vehicles
+                        ]
+                    infos.append(
+                        self._client.publish(
+                            msg.topic(self.config.fleet, None, "status"),
+                            msg.encode("status", state="offline"),
+                            qos=1,
+                            retain=True,
+                        )
+                    )
                     for info in infos:
                         try:
                             info.wait_for_publish(2.0)
@@ -586,15 +683,25 @@ class SitlConfig(RemoteConfig):
 
     level: str = "sitl"
     measurements: Literal["synthetic", "vehicle"] = "synthetic"
-    launch: bool = Field(default=False, description="Start broker, emulator and bridges for this run, and stop them after.")
+    launch: bool = Field(
+        default=False, description="Start broker, emulator and bridges for this run, and stop them after."
+    )
     speedup: float = Field(default=50.0, gt=0, description="Emulator time speed-up when launching.")
     broker_kind: Literal["auto", "mosquitto", "embedded"] = Field(
         default="auto", description="Broker to launch: Mosquitto if installed (auto), or the embedded one."
     )
-    failsafe_timeout: float = Field(default=30.0, gt=0, description="Bridges' comms-loss failsafe when launching, seconds.")
-    emulator_args: list[str] = Field(default_factory=list, description="Extra 'guadal sitl' options when launching.")
-    bridge_args: list[str] = Field(default_factory=list, description="Extra 'guadal bridge' options when launching.")
-    stack_timeout: float = Field(default=60.0, gt=0, description="Seconds for a launched stack to become ready.")
+    failsafe_timeout: float = Field(
+        default=30.0, gt=0, description="Bridges' comms-loss failsafe when launching, seconds."
+    )
+    emulator_args: list[str] = Field(
+        default_factory=list, description="Extra 'guadal sitl' options when launching."
+    )
+    bridge_args: list[str] = Field(
+        default_factory=list, description="Extra 'guadal bridge' options when launching."
+    )
+    stack_timeout: float = Field(
+        default=60.0, gt=0, description="Seconds for a launched stack to become ready."
+    )
 
 
 class RealConfig(RemoteConfig):
@@ -608,7 +715,9 @@ class RealConfig(RemoteConfig):
 
 
 def _fleet(config: RemoteConfig, graph, fleet_config, sensor, on_close=None) -> RemoteFleet:
-    return RemoteFleet(graph, fleet_config.vehicles, fleet_config.max_distance, sensor, config, on_close=on_close)
+    return RemoteFleet(
+        graph, fleet_config.vehicles, fleet_config.max_distance, sensor, config, on_close=on_close
+    )
 
 
 class SitlBackend:
@@ -629,13 +738,28 @@ class SitlBackend:
             raise GuadalError("backend.launch needs the mission's map file to start the bridges.")
         homes = [(float(graph.lat[n]), float(graph.lon[n])) for n in mission.initial_nodes]
         stack = Stack.launch(
-            map_path=graph.map.source, vehicles=fleet_config.vehicles, homes=homes, speedup=cfg.speedup,
-            fleet=cfg.fleet, broker_kind=cfg.broker_kind, failsafe_timeout=cfg.failsafe_timeout,
-            emulator_args=cfg.emulator_args, bridge_args=cfg.bridge_args, timeout=cfg.stack_timeout,
+            map_path=graph.map.source,
+            vehicles=fleet_config.vehicles,
+            homes=homes,
+            speedup=cfg.speedup,
+            fleet=cfg.fleet,
+            broker_kind=cfg.broker_kind,
+            failsafe_timeout=cfg.failsafe_timeout,
+            emulator_args=cfg.emulator_args,
+            bridge_args=cfg.bridge_args,
+            timeout=cfg.stack_timeout,
         )
         try:
-            launched = cfg.model_copy(update={"host": stack.broker_host, "port": stack.broker_port, "tls": False,
-                                              "username": None, "password": None, "password_env": None})
+            launched = cfg.model_copy(
+                update={
+                    "host": stack.broker_host,
+                    "port": stack.broker_port,
+                    "tls": False,
+                    "username": None,
+                    "password": None,
+                    "password_env": None,
+                }
+            )
             return _fleet(launched, graph, fleet_config, sensor, on_close=stack.down)
         except BaseException:
             stack.down()
@@ -652,4 +776,3 @@ class RealBackend:
 
     def make_fleet(self, *, graph: NavGraph, fleet_config, sensor: Sensor, mission=None) -> Fleet:
         return _fleet(self.config, graph, fleet_config, sensor)
-

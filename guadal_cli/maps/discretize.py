@@ -50,11 +50,15 @@ class DiscretizeOptions:
         if not (0 < self.min_fraction <= 1):
             raise GuadalError(f"--min-fraction must be in (0, 1] (got {self.min_fraction:g}).")
         if not (1 <= self.supersample <= 32):
-            raise GuadalError(f"--supersample must be between 1 and 32 samples per cell side (got {self.supersample}).")
+            raise GuadalError(
+                f"--supersample must be between 1 and 32 samples per cell side (got {self.supersample})."
+            )
         if not self.margin_m >= 0:
             raise GuadalError(f"--margin must be zero or more metres (got {self.margin_m:g}).")
         if self.fill_holes_m2 is not None and not self.fill_holes_m2 >= 0:
-            raise GuadalError(f"--fill-holes must be zero or more square metres (got {self.fill_holes_m2:g}).")
+            raise GuadalError(
+                f"--fill-holes must be zero or more square metres (got {self.fill_holes_m2:g})."
+            )
 
 
 @dataclass
@@ -70,15 +74,17 @@ class Discretized:
     def summary(self) -> dict:
         _, bodies = ndimage.label(self.map.mask, structure=_EIGHT)
         data = self.map.summary()
-        data.update({
-            "bodies": int(bodies),
-            "source": self.source.path.name,
-            "source_kind": self.source.kind,
-            "water_rule": self.source.rule,
-            "georeference": self.source.georef,
-            "source_water_m2": round(float(self.source.water_area_m2), 1),
-            "samples_per_cell": self.supersample**2,
-        })
+        data.update(
+            {
+                "bodies": int(bodies),
+                "source": self.source.path.name,
+                "source_kind": self.source.kind,
+                "water_rule": self.source.rule,
+                "georeference": self.source.georef,
+                "source_water_m2": round(float(self.source.water_area_m2), 1),
+                "samples_per_cell": self.supersample**2,
+            }
+        )
         return data
 
 
@@ -156,7 +162,9 @@ def discretize(source, options: DiscretizeOptions, name: str = "", description: 
     options.check()
     cell = options.cell_size_m if options.cell_size_m is not None else source.default_cell_size_m
     if cell is None:
-        raise GuadalError(f"--cell-size is required for a {source.kind} (the size of the map's square cells, in metres).")
+        raise GuadalError(
+            f"--cell-size is required for a {source.kind} (the size of the map's square cells, in metres)."
+        )
     cell = float(cell)
     water_m2 = float(source.water_area_m2)
     if water_m2 < cell**2:
@@ -170,7 +178,9 @@ def discretize(source, options: DiscretizeOptions, name: str = "", description: 
     while k > 1 and rows * cols * k * k > MAX_SAMPLES:
         k -= 1
     if k != options.supersample:
-        notes.append(f"{k}x{k} samples per cell instead of {options.supersample}x{options.supersample}, to bound memory")
+        notes.append(
+            f"{k}x{k} samples per cell instead of {options.supersample}x{options.supersample}, to bound memory"
+        )
     sample_m = cell / k
 
     fine = sample_water(source, rows, cols, reference, cell, k)

@@ -117,8 +117,16 @@ class Map:
         """Area of every cell; from neighbour spacing when the grid gives coordinates."""
         if self.latlon_grid is None:
             return np.full(self.mask.shape, self.cell_size_m**2)
-        dx = np.abs(np.gradient(self.x, axis=1)) if self.mask.shape[1] > 1 else np.full(self.mask.shape, self.cell_size_m)
-        dy = np.abs(np.gradient(self.y, axis=0)) if self.mask.shape[0] > 1 else np.full(self.mask.shape, self.cell_size_m)
+        dx = (
+            np.abs(np.gradient(self.x, axis=1))
+            if self.mask.shape[1] > 1
+            else np.full(self.mask.shape, self.cell_size_m)
+        )
+        dy = (
+            np.abs(np.gradient(self.y, axis=0))
+            if self.mask.shape[0] > 1
+            else np.full(self.mask.shape, self.cell_size_m)
+        )
         return dx * dy
 
     def summary(self) -> dict:
@@ -129,8 +137,12 @@ class Map:
             "water_nodes": self.water_nodes,
             "cell_size_m": round(float(self.cell_size_m), 6),
             "area_m2": round(float(self.cell_area_m2()[water].sum()), 3),
-            "lat_bounds": [float(self.lat[water].min()), float(self.lat[water].max())] if water.any() else None,
-            "lon_bounds": [float(self.lon[water].min()), float(self.lon[water].max())] if water.any() else None,
+            "lat_bounds": [float(self.lat[water].min()), float(self.lat[water].max())]
+            if water.any()
+            else None,
+            "lon_bounds": [float(self.lon[water].min()), float(self.lon[water].max())]
+            if water.any()
+            else None,
         }
 
     def rowcol_of(self, lat: float, lon: float) -> tuple[int, int] | None:
@@ -196,16 +208,16 @@ def map_from_dict(data: dict, path: Path | str = "<map>") -> Map:
     if not isinstance(data, dict) or data.get("format") != FORMAT_NAME:
         raise GuadalError(f"{where} is not a guadal map: 'format' must be '{FORMAT_NAME}'.")
     if data.get("version") != FORMAT_VERSION:
-        raise GuadalError(f"{where} has version {data.get('version')!r}; this guadal reads version {FORMAT_VERSION}.")
+        raise GuadalError(
+            f"{where} has version {data.get('version')!r}; this guadal reads version {FORMAT_VERSION}."
+        )
     rows = data.get("mask")
     if not isinstance(rows, list) or not rows or not all(isinstance(r, str) for r in rows):
         raise GuadalError(f"{where}: 'mask' must be a list of strings of 0 and 1, one per row.")
     width = len(rows[0])
     for i, row in enumerate(rows):
         if len(row) != width or set(row) - {"0", "1"}:
-            raise GuadalError(
-                f"{where}: mask row {i} must be {width} characters of 0 (land) and 1 (water)."
-            )
+            raise GuadalError(f"{where}: mask row {i} must be {width} characters of 0 (land) and 1 (water).")
     mask = np.array([[c == "1" for c in row] for row in rows], dtype=bool)
     if not mask.any():
         raise GuadalError(f"{where}: the mask has no water cell.")
@@ -225,7 +237,10 @@ def map_from_dict(data: dict, path: Path | str = "<map>") -> Map:
     latlon = None
     if "latlon" in data:
         try:
-            latlon = (np.array(data["latlon"]["lat"], dtype=float), np.array(data["latlon"]["lon"], dtype=float))
+            latlon = (
+                np.array(data["latlon"]["lat"], dtype=float),
+                np.array(data["latlon"]["lon"], dtype=float),
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise GuadalError(f"{where}: 'latlon' must hold 'lat' and 'lon' grids of numbers.") from exc
     return Map(

@@ -53,7 +53,7 @@ class Bounds:
             )
 
     @classmethod
-    def parse(cls, text: str) -> "Bounds":
+    def parse(cls, text: str) -> Bounds:
         """``"north,south,east,west"`` in decimal degrees."""
         parts = [p.strip() for p in str(text).split(",")]
         try:
@@ -76,7 +76,7 @@ class Bounds:
         ns = math.radians(1) * EARTH_RADIUS_M
         return ns * math.cos(math.radians(self.centre[0])), ns
 
-    def largest_gap_m(self, other: "Bounds") -> tuple[float, str]:
+    def largest_gap_m(self, other: Bounds) -> tuple[float, str]:
         """The edge on which two bounds differ most, and by how many metres."""
         ew, ns = self.metres_per_degree()
         gaps = {
@@ -112,7 +112,9 @@ def read_world_file(path: Path, width: int, height: int) -> Bounds:
             "(pixel width, rotation, rotation, pixel height, lon and lat of the top-left pixel centre)."
         ) from exc
     if d != 0 or b != 0:
-        raise GuadalError(f"world file '{path.name}' rotates the image; guadal reads north-up images only (rotation terms must be 0).")
+        raise GuadalError(
+            f"world file '{path.name}' rotates the image; guadal reads north-up images only (rotation terms must be 0)."
+        )
     if not (a > 0 and e < 0):
         raise GuadalError(
             f"world file '{path.name}' must give a positive pixel width and a negative pixel height "
@@ -141,7 +143,9 @@ def image_bounds(image: Path, width: int, height: int, bounds: Bounds | None) ->
     if bounds is None:
         return from_world, f"world file {world.name}"
     ew, ns = from_world.metres_per_degree()
-    pixel_m = max((from_world.east - from_world.west) / width * ew, (from_world.north - from_world.south) / height * ns)
+    pixel_m = max(
+        (from_world.east - from_world.west) / width * ew, (from_world.north - from_world.south) / height * ns
+    )
     gap, edge = from_world.largest_gap_m(bounds)
     if gap > pixel_m:
         raise GuadalError(

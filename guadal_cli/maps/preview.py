@@ -81,8 +81,10 @@ def write_figure(fig: Figure, path: Path) -> None:
 
 def _title(map_: Map) -> str:
     s = map_.summary()
-    return (f"{s['name'] or 'map'}: {s['shape'][0]}x{s['shape'][1]} cells of {s['cell_size_m']:g} m, "
-            f"{s['water_nodes']} water nodes, {s['area_m2']:,.0f} m²")
+    return (
+        f"{s['name'] or 'map'}: {s['shape'][0]}x{s['shape'][1]} cells of {s['cell_size_m']:g} m, "
+        f"{s['water_nodes']} water nodes, {s['area_m2']:,.0f} m²"
+    )
 
 
 def preview_discretized(result, path: Path) -> None:

@@ -63,8 +63,10 @@ class RasterSource:
         r0, r1, c0, c1 = _mask_bbox(self.water)
         b = self.bounds
         return Bounds(
-            north=b.north - r0 * self.dlat, south=b.north - (r1 + 1) * self.dlat,
-            east=b.west + (c1 + 1) * self.dlon, west=b.west + c0 * self.dlon,
+            north=b.north - r0 * self.dlat,
+            south=b.north - (r1 + 1) * self.dlat,
+            east=b.west + (c1 + 1) * self.dlon,
+            west=b.west + c0 * self.dlon,
         )
 
     def water_on_lattice(self, lats: np.ndarray, lons: np.ndarray) -> np.ndarray:
@@ -81,7 +83,11 @@ class RasterSource:
         b = self.bounds
         image = self.background
         if image is None:
-            image = np.where(self.water[..., None], np.array([156, 195, 230], np.uint8), np.array([235, 230, 215], np.uint8))
+            image = np.where(
+                self.water[..., None],
+                np.array([156, 195, 230], np.uint8),
+                np.array([235, 230, 215], np.uint8),
+            )
         ax.imshow(image, extent=(b.west, b.east, b.south, b.north), interpolation="nearest", origin="upper")
 
 
@@ -104,16 +110,30 @@ class CoordinateGridSource:
     kind: str = "grid mask"
 
     def __post_init__(self) -> None:
-        self.centre_lat = 0.25 * (self.corner_lat[:-1, :-1] + self.corner_lat[1:, :-1] + self.corner_lat[:-1, 1:] + self.corner_lat[1:, 1:])
-        self.centre_lon = 0.25 * (self.corner_lon[:-1, :-1] + self.corner_lon[1:, :-1] + self.corner_lon[:-1, 1:] + self.corner_lon[1:, 1:])
+        self.centre_lat = 0.25 * (
+            self.corner_lat[:-1, :-1]
+            + self.corner_lat[1:, :-1]
+            + self.corner_lat[:-1, 1:]
+            + self.corner_lat[1:, 1:]
+        )
+        self.centre_lon = 0.25 * (
+            self.corner_lon[:-1, :-1]
+            + self.corner_lon[1:, :-1]
+            + self.corner_lon[:-1, 1:]
+            + self.corner_lon[1:, 1:]
+        )
         self.projection = LocalProjection(float(self.centre_lat.mean()), float(self.centre_lon.mean()))
         cx, cy = self.projection.to_xy(self.centre_lat, self.centre_lon)
         self._tree = cKDTree(np.column_stack([cx.ravel(), cy.ravel()]))
         kx, ky = self.projection.to_xy(self.corner_lat, self.corner_lon)
-        ring = np.concatenate([
-            np.column_stack([kx[0, :], ky[0, :]]), np.column_stack([kx[1:, -1], ky[1:, -1]]),
-            np.column_stack([kx[-1, -2::-1], ky[-1, -2::-1]]), np.column_stack([kx[-2:0:-1, 0], ky[-2:0:-1, 0]]),
-        ])
+        ring = np.concatenate(
+            [
+                np.column_stack([kx[0, :], ky[0, :]]),
+                np.column_stack([kx[1:, -1], ky[1:, -1]]),
+                np.column_stack([kx[-1, -2::-1], ky[-1, -2::-1]]),
+                np.column_stack([kx[-2:0:-1, 0], ky[-2:0:-1, 0]]),
+            ]
+        )
         self._outline = PolyPath(ring)
         self._edge_cell = np.zeros(self.water.shape, dtype=bool)
         self._edge_cell[[0, -1], :] = self._edge_cell[:, [0, -1]] = True
@@ -123,9 +143,12 @@ class CoordinateGridSource:
         self.cell_width_m = float(np.median(ex))
         self.cell_height_m = float(np.median(ey))
         if not (self.cell_width_m > 0 and self.cell_height_m > 0):
-            raise GuadalError(f"{self.georef}: the coordinates give cells of zero size; neighbouring points must differ.")
+            raise GuadalError(
+                f"{self.georef}: the coordinates give cells of zero size; neighbouring points must differ."
+            )
         self.cell_area_m2 = 0.5 * np.abs(
-            (kx[1:, 1:] - kx[:-1, :-1]) * (ky[1:, :-1] - ky[:-1, 1:]) - (ky[1:, 1:] - ky[:-1, :-1]) * (kx[1:, :-1] - kx[:-1, 1:])
+            (kx[1:, 1:] - kx[:-1, :-1]) * (ky[1:, :-1] - ky[:-1, 1:])
+            - (ky[1:, 1:] - ky[:-1, :-1]) * (kx[1:, :-1] - kx[:-1, 1:])
         )
 
     @property
@@ -135,7 +158,12 @@ class CoordinateGridSource:
 
     @property
     def bounds(self) -> Bounds:
-        return Bounds(float(self.corner_lat.max()), float(self.corner_lat.min()), float(self.corner_lon.max()), float(self.corner_lon.min()))
+        return Bounds(
+            float(self.corner_lat.max()),
+            float(self.corner_lat.min()),
+            float(self.corner_lon.max()),
+            float(self.corner_lon.min()),
+        )
 
     @property
     def water_area_m2(self) -> float:
@@ -166,8 +194,16 @@ class CoordinateGridSource:
     def draw(self, ax) -> None:
         from matplotlib.colors import ListedColormap
 
-        ax.pcolormesh(self.corner_lon, self.corner_lat, self.water.astype(float),
-                      cmap=ListedColormap(["#ebe6d7", "#9cc3e6"]), vmin=0, vmax=1, edgecolors="#d0ccc0", linewidth=0.2)
+        ax.pcolormesh(
+            self.corner_lon,
+            self.corner_lat,
+            self.water.astype(float),
+            cmap=ListedColormap(["#ebe6d7", "#9cc3e6"]),
+            vmin=0,
+            vmax=1,
+            edgecolors="#d0ccc0",
+            linewidth=0.2,
+        )
 
 
 @dataclass
@@ -186,8 +222,12 @@ class OutlineSource:
         everything = np.concatenate([ring for polygon in self.polygons for ring in polygon])
         if np.ptp(everything[:, 0]) == 0 or np.ptp(everything[:, 1]) == 0:
             raise GuadalError(f"no water found: the polygons of outline '{self.path.name}' enclose no area.")
-        self.bounds = Bounds(float(everything[:, 1].max()), float(everything[:, 1].min()),
-                             float(everything[:, 0].max()), float(everything[:, 0].min()))
+        self.bounds = Bounds(
+            float(everything[:, 1].max()),
+            float(everything[:, 1].min()),
+            float(everything[:, 0].max()),
+            float(everything[:, 0].min()),
+        )
         self.projection = LocalProjection(*self.bounds.centre)
         for polygon in self.polygons:
             x1 = np.concatenate([ring[:-1, 0] for ring in polygon])
@@ -223,7 +263,9 @@ class OutlineSource:
                 crossing = (y1 <= lat) != (y2 <= lat)
                 if not crossing.any():
                     continue
-                xs = x1[crossing] + (lat - y1[crossing]) * (x2[crossing] - x1[crossing]) / (y2[crossing] - y1[crossing])
+                xs = x1[crossing] + (lat - y1[crossing]) * (x2[crossing] - x1[crossing]) / (
+                    y2[crossing] - y1[crossing]
+                )
                 xs.sort()
                 out[i] |= (np.searchsorted(xs, lons, side="left") % 2) == 1
         return out
@@ -280,7 +322,9 @@ def read_grid_mask(path: Path, water_value: float) -> np.ndarray:
         try:
             rows.append([float(c) for c in cells])
         except ValueError:
-            raise GuadalError(f"grid mask '{path.name}' line {number}: every cell must be a number (got '{line[:40]}').") from None
+            raise GuadalError(
+                f"grid mask '{path.name}' line {number}: every cell must be a number (got '{line[:40]}')."
+            ) from None
         if len(rows[-1]) != len(rows[0]):
             raise GuadalError(
                 f"grid mask '{path.name}' line {number} has {len(rows[-1])} cells but the first row has {len(rows[0])}; "
@@ -316,7 +360,9 @@ def read_latlon_grid(path: Path) -> tuple[np.ndarray, np.ndarray]:
                     "each row holds \"lat,lon\" strings separated by ';'."
                 ) from None
             if not (-90 <= lat <= 90 and -180 <= lon <= 180):
-                raise GuadalError(f"coordinate grid '{path.name}' line {number}: ({lat:g}, {lon:g}) is not a lat/lon in degrees.")
+                raise GuadalError(
+                    f"coordinate grid '{path.name}' line {number}: ({lat:g}, {lon:g}) is not a lat/lon in degrees."
+                )
             lats.append(lat)
             lons.append(lon)
         if lat_rows and len(lats) != len(lat_rows[0]):
@@ -342,7 +388,9 @@ def _rings(coords, where: str) -> list[np.ndarray]:
         if len(arr) < 4:
             raise GuadalError(f"{where}: a polygon ring needs at least three distinct positions.")
         if np.abs(arr[:, 0]).max() > 180 or np.abs(arr[:, 1]).max() > 90:
-            raise GuadalError(f"{where}: positions must be [lon, lat] in degrees, as GeoJSON requires (found values beyond ±180/±90).")
+            raise GuadalError(
+                f"{where}: positions must be [lon, lat] in degrees, as GeoJSON requires (found values beyond ±180/±90)."
+            )
         rings.append(arr)
     if not rings:
         raise GuadalError(f"{where}: a polygon needs at least its outer ring.")
@@ -354,10 +402,14 @@ def read_outline(path: Path) -> list[list[np.ndarray]]:
     try:
         data = json.loads(_read_text(path, "outline"))
     except json.JSONDecodeError as exc:
-        raise GuadalError(f"cannot read outline '{path.name}': not valid JSON ({exc.msg} at line {exc.lineno}).") from exc
+        raise GuadalError(
+            f"cannot read outline '{path.name}': not valid JSON ({exc.msg} at line {exc.lineno})."
+        ) from exc
     where = f"outline '{path.name}'"
     if isinstance(data, dict) and data.get("format") == "guadal-map":
-        raise GuadalError(f"'{path.name}' is a guadal map already: 'guadal map info' and 'guadal map show' read it.")
+        raise GuadalError(
+            f"'{path.name}' is a guadal map already: 'guadal map info' and 'guadal map show' read it."
+        )
     polygons: list[list[np.ndarray]] = []
 
     def visit(obj) -> None:
@@ -410,17 +462,26 @@ def open_source(
         raise GuadalError(f"cannot read '{path.name}': unknown kind of file '{suffix}' (allowed: {allowed}).")
     a_kind = {"image": "an image", "grid mask": "a grid mask", "outline": "an outline"}[kind]
     if kind != "image" and image_only_options:
-        raise GuadalError(f"{', '.join(image_only_options)} apply to images only, and '{path.name}' is {a_kind}.")
-    for flag, given in (("--latlon-grid", latlon_grid is not None), ("--water-value", water_value is not None)):
+        raise GuadalError(
+            f"{', '.join(image_only_options)} apply to images only, and '{path.name}' is {a_kind}."
+        )
+    for flag, given in (
+        ("--latlon-grid", latlon_grid is not None),
+        ("--water-value", water_value is not None),
+    ):
         if kind != "grid mask" and given:
-            raise GuadalError(f"{flag} applies to grid masks (.csv, .txt) only, and '{path.name}' is {a_kind}.")
+            raise GuadalError(
+                f"{flag} applies to grid masks (.csv, .txt) only, and '{path.name}' is {a_kind}."
+            )
     parsed_bounds = Bounds.parse(bounds) if bounds is not None else None
 
     if kind == "image":
         return _open_image(path, parsed_bounds, rule or WaterRule())
     if kind == "outline":
         if parsed_bounds is not None:
-            raise GuadalError(f"--bounds does not apply to outlines: '{path.name}' carries its own lon/lat coordinates.")
+            raise GuadalError(
+                f"--bounds does not apply to outlines: '{path.name}' carries its own lon/lat coordinates."
+            )
         return OutlineSource(path, read_outline(path))
     return _open_grid(path, parsed_bounds, 1.0 if water_value is None else water_value, latlon_grid)
 
@@ -439,7 +500,15 @@ def _open_image(path: Path, bounds: Bounds | None, rule: WaterRule) -> RasterSou
             f"no water found in '{path.name}': no pixel matches the rule {applied.describe()}; "
             "choose another rule with --water-color, --threshold or --invert."
         )
-    return RasterSource(path, "image", water, georef_bounds, described, georef, background=np.clip(rgb, 0, 255).astype(np.uint8))
+    return RasterSource(
+        path,
+        "image",
+        water,
+        georef_bounds,
+        described,
+        georef,
+        background=np.clip(rgb, 0, 255).astype(np.uint8),
+    )
 
 
 def _open_grid(path: Path, bounds: Bounds | None, water_value: float, latlon_grid: Path | None):
@@ -470,4 +539,6 @@ def _open_grid(path: Path, bounds: Bounds | None, water_value: float, latlon_gri
             f"coordinate grid '{latlon_grid.name}' is {lat.shape[0]}x{lat.shape[1]} but the mask '{path.name}' is "
             f"{rows}x{cols}; it must be {rows}x{cols} (cell centres) or {rows + 1}x{cols + 1} (cell corners)."
         )
-    return CoordinateGridSource(path, water, corner_lat, corner_lon, rule, f"cell {role} from {latlon_grid.name}")
+    return CoordinateGridSource(
+        path, water, corner_lat, corner_lon, rule, f"cell {role} from {latlon_grid.name}"
+    )

@@ -24,7 +24,14 @@ import numpy as np
 from ..errors import GuadalError
 
 CHANNELS = ("red", "green", "blue", "gray", "index")
-_ALIASES = {"r": "red", "g": "green", "b": "blue", "grey": "gray", "luminance": "gray", "water_index": "index"}
+_ALIASES = {
+    "r": "red",
+    "g": "green",
+    "b": "blue",
+    "grey": "gray",
+    "luminance": "gray",
+    "water_index": "index",
+}
 _OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
 _THRESHOLD = re.compile(r"^\s*([a-zA-Z_]+)\s*(<=|>=|<|>)\s*([-+]?(?:\d+\.?\d*|\.\d+))\s*$")
 
@@ -67,7 +74,9 @@ def parse_threshold(text: str) -> Threshold:
         )
     name = _ALIASES.get(match.group(1).lower(), match.group(1).lower())
     if name not in CHANNELS:
-        raise GuadalError(f"--threshold: unknown channel '{match.group(1)}' (allowed: {', '.join(CHANNELS)}).")
+        raise GuadalError(
+            f"--threshold: unknown channel '{match.group(1)}' (allowed: {', '.join(CHANNELS)})."
+        )
     return Threshold(name, match.group(2), float(match.group(3)))
 
 
@@ -83,7 +92,9 @@ def parse_colour(text: str) -> tuple[float, float, float]:
     except ValueError:
         values = ()
     if len(values) != 3 or not all(0 <= v <= 255 for v in values):
-        raise GuadalError(f"--water-color '{text}' must be R,G,B with each value in 0-255 (e.g. 40,90,110) or #RRGGBB.")
+        raise GuadalError(
+            f"--water-color '{text}' must be R,G,B with each value in 0-255 (e.g. 40,90,110) or #RRGGBB."
+        )
     return values  # type: ignore[return-value]
 
 
@@ -97,7 +108,9 @@ class WaterRule:
     invert: bool = False
 
     @classmethod
-    def from_options(cls, water_color: str | None, tolerance: float, threshold: str | None, invert: bool) -> "WaterRule":
+    def from_options(
+        cls, water_color: str | None, tolerance: float, threshold: str | None, invert: bool
+    ) -> WaterRule:
         if water_color and threshold:
             raise GuadalError("give either --water-color or --threshold, not both.")
         if not tolerance >= 0:
@@ -109,7 +122,7 @@ class WaterRule:
             invert=invert,
         )
 
-    def resolve(self, is_grey: bool) -> "WaterRule":
+    def resolve(self, is_grey: bool) -> WaterRule:
         """The rule actually applied: the default depends on whether the image is grey."""
         if self.colour is not None or self.threshold is not None:
             return self

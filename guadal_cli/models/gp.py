@@ -138,14 +138,18 @@ class IncrementalGP:
         n = self.n_
         if n == self._cap:
             self._grow()
-        k_star = self._kernel_row(point) if point is not None else kernel_matrix(self.kernel, x, self.points)[0]
+        k_star = (
+            self._kernel_row(point) if point is not None else kernel_matrix(self.kernel, x, self.points)[0]
+        )
         k_xx = self.kernel.variance + self.kernel.noise
         if n:
             if point is not None:
                 l = self._V[:n, point].copy()  # L^-1 k(X, x) is V's column for that point
             else:
                 k_x = kernel_matrix(self.kernel, x, self.X_)[0]
-                l = solve_triangular(np.ascontiguousarray(self._L[:n, :n]), k_x, lower=True, check_finite=False)
+                l = solve_triangular(
+                    np.ascontiguousarray(self._L[:n, :n]), k_x, lower=True, check_finite=False
+                )
             d2 = k_xx - l @ l
             v = k_star - l @ self._V[:n]
             z_prev = l @ self._z[:n]

@@ -31,9 +31,15 @@ from .frontier import SpreadingPlanner, explore, pick
 
 class DetectionGreedyConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    strategy: Literal["nearest", "densest"] = Field(default="nearest", description="Which evidence to go for first.")
-    density_radius_m: float = Field(default=10.0, ge=0, description="Evidence within this radius counts towards a node's density.")
-    separation_m: float = Field(default=15.0, ge=0, description="Metres around a chosen target closed to the other vehicles.")
+    strategy: Literal["nearest", "densest"] = Field(
+        default="nearest", description="Which evidence to go for first."
+    )
+    density_radius_m: float = Field(
+        default=10.0, ge=0, description="Evidence within this radius counts towards a node's density."
+    )
+    separation_m: float = Field(
+        default=15.0, ge=0, description="Metres around a chosen target closed to the other vehicles."
+    )
 
 
 class DetectionGreedy(SpreadingPlanner):

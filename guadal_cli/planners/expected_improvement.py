@@ -25,8 +25,12 @@ from .base import TARGET, Planner, best_node
 class EIConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     xi: float = Field(default=0.01, ge=0, description="Exploration margin added to the incumbent.")
-    exclusion_radius: float = Field(default=30.0, ge=0, description="Metres around a chosen target closed to other vehicles.")
-    min_target_distance: float = Field(default=0.0, ge=0, description="Ignore nodes closer than this (metres) to the vehicle.")
+    exclusion_radius: float = Field(
+        default=30.0, ge=0, description="Metres around a chosen target closed to other vehicles."
+    )
+    min_target_distance: float = Field(
+        default=0.0, ge=0, description="Ignore nodes closer than this (metres) to the vehicle."
+    )
 
 
 def expected_improvement(mean: np.ndarray, std: np.ndarray, best: float, xi: float) -> np.ndarray:
@@ -55,7 +59,11 @@ class ExpectedImprovement(Planner):
             if observation.done.get(v):
                 continue
             dist = graph.distances_from(observation.positions[v])
-            ok = open_nodes & (dist <= observation.remaining[v] + 1e-9) & (dist > max(self.config.min_target_distance, 1e-9))
+            ok = (
+                open_nodes
+                & (dist <= observation.remaining[v] + 1e-9)
+                & (dist > max(self.config.min_target_distance, 1e-9))
+            )
             if not ok.any():
                 continue
             score = np.where(ok, ei, -1.0)

@@ -27,8 +27,12 @@ from .base import SEQUENTIAL, TARGET, Planner, free_neighbours
 
 class FrontierConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    separation_m: float = Field(default=15.0, ge=0, description="Metres around a chosen target closed to the other vehicles.")
-    revisit: bool = Field(default=True, description="Once all is observed, renew the stalest observations (needs 'age').")
+    separation_m: float = Field(
+        default=15.0, ge=0, description="Metres around a chosen target closed to the other vehicles."
+    )
+    revisit: bool = Field(
+        default=True, description="Once all is observed, renew the stalest observations (needs 'age')."
+    )
 
 
 def frontier_mask(graph, observed: np.ndarray) -> np.ndarray:
@@ -37,7 +41,8 @@ def frontier_mask(graph, observed: np.ndarray) -> np.ndarray:
         return ~observed
     adj = graph.adjacency
     observed_neighbours = np.bincount(
-        np.repeat(np.arange(graph.n_nodes), np.diff(adj.indptr)), weights=observed[adj.indices].astype(float),
+        np.repeat(np.arange(graph.n_nodes), np.diff(adj.indptr)),
+        weights=observed[adj.indices].astype(float),
         minlength=graph.n_nodes,
     )
     return ~observed & (observed_neighbours > 0)
@@ -80,7 +85,8 @@ def hop_towards(observation: Observation, vehicle: int, target: int, claimed: se
     graph = observation.graph
     here = observation.positions[vehicle]
     options = [
-        n for n in free_neighbours(observation, vehicle, claimed)
+        n
+        for n in free_neighbours(observation, vehicle, claimed)
         if graph.edge_length(here, n) <= observation.remaining[vehicle] + 1e-9
     ]
     if not options:
@@ -92,7 +98,9 @@ def hop_towards(observation: Observation, vehicle: int, target: int, claimed: se
 class TargetAssigner:
     """One decision's bookkeeping: open nodes, claims, reachable distances, moves."""
 
-    def __init__(self, observation: Observation, separation_m: float, sequential: bool, banned: dict[int, set[int]]):
+    def __init__(
+        self, observation: Observation, separation_m: float, sequential: bool, banned: dict[int, set[int]]
+    ):
         self.observation = observation
         self.graph = observation.graph
         self.separation = separation_m

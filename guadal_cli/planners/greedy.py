@@ -25,7 +25,8 @@ class GreedyStd(Planner):
                 continue
             here = observation.positions[v]
             options = [
-                n for n in free_neighbours(observation, v, claimed)
+                n
+                for n in free_neighbours(observation, v, claimed)
                 if graph.edge_length(here, n) <= observation.remaining[v] + 1e-9
             ]
             if not options:

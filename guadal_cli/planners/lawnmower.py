@@ -38,7 +38,9 @@ def boustrophedon_routes(graph, start_nodes: dict[int, int]) -> dict[int, list[i
             route.extend(step[::-1] if i % 2 else step)
         routes.append([int(n) for n in route])
     # give the westernmost (or northernmost) band to the westernmost vehicle, and so on
-    by_position = sorted(start_nodes, key=lambda v: (graph.x[start_nodes[v]], v) if wide else (-graph.y[start_nodes[v]], v))
+    by_position = sorted(
+        start_nodes, key=lambda v: (graph.x[start_nodes[v]], v) if wide else (-graph.y[start_nodes[v]], v)
+    )
     return {v: routes[i] for i, v in enumerate(by_position)}
 
 
@@ -61,7 +63,9 @@ class Lawnmower(Planner):
                 self.cursor_[v] = len(route)
                 continue
             i = self.cursor_[v]
-            while i < len(route) and (observation.visits[route[i]] > 0 or route[i] in occupied or route[i] in targets.values()):
+            while i < len(route) and (
+                observation.visits[route[i]] > 0 or route[i] in occupied or route[i] in targets.values()
+            ):
                 i += 1
             self.cursor_[v] = i
             if i < len(route):

@@ -25,7 +25,8 @@ class RandomPlanner(Planner):
             here = observation.positions[v]
             if self.mode_ == SEQUENTIAL:
                 options = [
-                    n for n in free_neighbours(observation, v, claimed - {here})
+                    n
+                    for n in free_neighbours(observation, v, claimed - {here})
                     if graph.edge_length(here, n) <= observation.remaining[v] + 1e-9
                 ]
             else:

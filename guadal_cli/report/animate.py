@@ -29,7 +29,12 @@ MAX_FRAMES = 120
 FPS = 8
 DPI = 80
 FORMATS = ("gif", "mp4")
-TITLES = {"ground_truth": "ground truth", "mean": "estimated mean", "std": "uncertainty (std)", "water": "map"}
+TITLES = {
+    "ground_truth": "ground truth",
+    "mean": "estimated mean",
+    "std": "uncertainty (std)",
+    "water": "map",
+}
 
 
 def ffmpeg_available() -> bool:
@@ -59,9 +64,17 @@ class Replay:
         m = run.measurements
         self._steps = m.get("step", np.array([]))
         self._rows = [
-            Measurement(vehicle=int(v), node=int(n), value=float(val), lat=float(la), lon=float(lo), time_s=float(t))
-            for v, n, val, la, lo, t in zip(m.get("vehicle", []), m.get("node", []), m.get("value", []),
-                                             m.get("lat", []), m.get("lon", []), m.get("time_s", []))
+            Measurement(
+                vehicle=int(v), node=int(n), value=float(val), lat=float(la), lon=float(lo), time_s=float(t)
+            )
+            for v, n, val, la, lo, t in zip(
+                m.get("vehicle", []),
+                m.get("node", []),
+                m.get("value", []),
+                m.get("lat", []),
+                m.get("lon", []),
+                m.get("time_s", []),
+            )
         ]
         self._done = 0
 
@@ -74,7 +87,9 @@ class Replay:
         return {k: np.asarray(v, dtype=float) for k, v in self.env.observation_fields().items()}
 
 
-def animate(run: Run, out_dir: Path, fmt: str = "gif", max_frames: int = MAX_FRAMES) -> tuple[Path | None, str | None]:
+def animate(
+    run: Run, out_dir: Path, fmt: str = "gif", max_frames: int = MAX_FRAMES
+) -> tuple[Path | None, str | None]:
     """Write ``animation_<run>.<fmt>``; return its path and a warning sentence if it is degraded."""
     grid = run_grid(run)
     plan = run.track("plan")
@@ -114,13 +129,30 @@ def animate(run: Run, out_dir: Path, fmt: str = "gif", max_frames: int = MAX_FRA
             vmin, vmax = float(np.nanmin(truth)), float(np.nanmax(truth))
         if column == "std" and replay is not None:
             vmin, vmax = 0.0, float(np.nanmax(first["std"])) or 1.0
-        images.append(draw_field(ax, grid, static if static is not None else np.zeros(len(grid.rows)),
-                                 "magma" if column == "std" else "viridis", vmin, vmax))
+        images.append(
+            draw_field(
+                ax,
+                grid,
+                static if static is not None else np.zeros(len(grid.rows)),
+                "magma" if column == "std" else "viridis",
+                vmin,
+                vmax,
+            )
+        )
         ax.set_title(TITLES.get(column, column), fontsize="small")
         samples.append(ax.scatter([], [], s=4, c="white", edgecolors="black", linewidths=0.3, zorder=3))
         for v in plan:
             (trail,) = ax.plot([], [], color=vehicle_colour(v), linewidth=1.0, alpha=0.9, zorder=4)
-            (cross,) = ax.plot([], [], marker="x", markersize=9, markeredgewidth=2.2, color=vehicle_colour(v), linestyle="none", zorder=5)
+            (cross,) = ax.plot(
+                [],
+                [],
+                marker="x",
+                markersize=9,
+                markeredgewidth=2.2,
+                color=vehicle_colour(v),
+                linestyle="none",
+                zorder=5,
+            )
             trails.append((v, trail))
             crosses.append((v, cross))
     title = fig.suptitle(f"{run.name} ({run.algorithm}): step {last}, 0000 m")  # room for the longest title
@@ -171,9 +203,30 @@ def write_gif(frames: list[np.ndarray], path: Path) -> None:
 def write_mp4(frames: list[np.ndarray], path: Path) -> None:
     """Raw RGB frames piped to ffmpeg as H.264 (even frame sizes, as the codec needs)."""
     h, w = frames[0].shape[0] // 2 * 2, frames[0].shape[1] // 2 * 2
-    cmd = [shutil.which("ffmpeg") or "ffmpeg", "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
-           "-s", f"{w}x{h}", "-r", str(FPS), "-i", "-", "-pix_fmt", "yuv420p", "-vcodec", "libx264", str(path)]
+    cmd = [
+        shutil.which("ffmpeg") or "ffmpeg",
+        "-y",
+        "-loglevel",
+        "error",
+        "-f",
+        "rawvideo",
+        "-pix_fmt",
+        "rgb24",
+        "-s",
+        f"{w}x{h}",
+        "-r",
+        str(FPS),
+        "-i",
+        "-",
+        "-pix_fmt",
+        "yuv420p",
+        "-vcodec",
+        "libx264",
+        str(path),
+    ]
     data = b"".join(np.ascontiguousarray(f[:h, :w]).tobytes() for f in frames)
     result = subprocess.run(cmd, input=data, capture_output=True, check=False)
     if result.returncode != 0:
-        raise GuadalError(f"ffmpeg could not write '{path}': {result.stderr.decode(errors='replace').strip()[:300]}")
+        raise GuadalError(
+            f"ffmpeg could not write '{path}': {result.stderr.decode(errors='replace').strip()[:300]}"
+        )

@@ -64,9 +64,17 @@ class Report:
         for env, cols, rows in tables.by_environment(gcols, grows, g_envs):
             where = f" in environment {env}" if split else ""
             n = len(rows)
-            out.append((f"{n} group{'s' if n != 1 else ''}{where} by {', '.join(self.group_by)} (mean ± std over complete runs)", cols, rows))
+            out.append(
+                (
+                    f"{n} group{'s' if n != 1 else ''}{where} by {', '.join(self.group_by)} (mean ± std over complete runs)",
+                    cols,
+                    rows,
+                )
+            )
         text = [[tables.cell_text(v) for v in r] for r in self.run_rows]
-        for env, cols, rows in tables.by_environment(self.run_columns, text, [r.environment for r in self.runs]):
+        for env, cols, rows in tables.by_environment(
+            self.run_columns, text, [r.environment for r in self.runs]
+        ):
             where = f" in environment {env}" if split else ""
             n = len(rows)
             out.append((f"{n} run{'s' if n != 1 else ''}{where} (final values)", cols, rows))
@@ -74,7 +82,9 @@ class Report:
 
     def markdown(self) -> str:
         notes = "".join(f"> warning: {w}\n\n" for w in self.warnings)
-        return notes + "\n".join(f"## {title}\n\n{tables.to_markdown(cols, rows)}" for title, cols, rows in self.display_tables())
+        return notes + "\n".join(
+            f"## {title}\n\n{tables.to_markdown(cols, rows)}" for title, cols, rows in self.display_tables()
+        )
 
 
 def check_options(options: Options) -> None:
@@ -124,17 +134,23 @@ def curve_metrics(runs: list[Run], wanted: list[str] | None) -> list[str]:
         return [c for c in available if c != "samples"]
     unknown = [m for m in wanted if m not in available]
     if unknown:
-        raise GuadalError(f"--metrics: no run recorded {', '.join(repr(m) for m in unknown)}; available: {', '.join(available)}.")
+        raise GuadalError(
+            f"--metrics: no run recorded {', '.join(repr(m) for m in unknown)}; available: {', '.join(available)}."
+        )
     return wanted
 
 
-def write(report: Report, out_dir: Path, options: Options, on_file: Callable[[str], None] = lambda what: None) -> list[str]:
+def write(
+    report: Report, out_dir: Path, options: Options, on_file: Callable[[str], None] = lambda what: None
+) -> list[str]:
     """Write every table, figure, animation and export; return warnings met on the way."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise GuadalError(f"--output '{out_dir}' is a file; give a folder for the report.")
     if options.animate == "mp4" and not ffmpeg_available():
-        raise GuadalError("--animate mp4 needs an ffmpeg program on the PATH, and none was found; use --animate gif.")
+        raise GuadalError(
+            "--animate mp4 needs an ffmpeg program on the PATH, and none was found; use --animate gif."
+        )
     metrics = curve_metrics(report.runs, options.metrics)
     extra_warnings: list[str] = []
     files = report.files
@@ -153,7 +169,10 @@ def write(report: Report, out_dir: Path, options: Options, on_file: Callable[[st
     curve_figs, map_figs, track_figs = [], [], []
     for metric in metrics:
         on_file(f"curve {metric}")
-        curve_figs += [(p, f"{metric} against {options.x_axis}") for p in plots.metric_curves(report.groups, metric, options.x_axis, fdir)]
+        curve_figs += [
+            (p, f"{metric} against {options.x_axis}")
+            for p in plots.metric_curves(report.groups, metric, options.x_axis, fdir)
+        ]
     for run in report.runs:
         on_file(f"maps {run.name}")
         map_figs += [(p, f"final maps of {run.name} ({run.status})") for p in plots.final_maps(run, fdir)]

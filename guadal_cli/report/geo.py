@@ -43,24 +43,50 @@ def geojson(run: Run) -> dict:
     features = []
     for source in ("plan", "gps"):
         for v, rows in run.track(source).items():
-            coords = [[float(lo), float(la)] for la, lo in zip(rows["lat"], rows["lon"]) if not (math.isnan(la) or math.isnan(lo))]
+            coords = [
+                [float(lo), float(la)]
+                for la, lo in zip(rows["lat"], rows["lon"])
+                if not (math.isnan(la) or math.isnan(lo))
+            ]
             if not coords:
                 continue
-            geometry = {"type": "LineString", "coordinates": coords} if len(coords) > 1 else {"type": "Point", "coordinates": coords[0]}
-            features.append({
-                "type": "Feature",
-                "geometry": geometry,
-                "properties": {"kind": "track", "source": source, "vehicle": v, "run": run.name,
-                               "algorithm": run.algorithm, "seed": run.seed, "status": run.status},
-            })
+            geometry = (
+                {"type": "LineString", "coordinates": coords}
+                if len(coords) > 1
+                else {"type": "Point", "coordinates": coords[0]}
+            )
+            features.append(
+                {
+                    "type": "Feature",
+                    "geometry": geometry,
+                    "properties": {
+                        "kind": "track",
+                        "source": source,
+                        "vehicle": v,
+                        "run": run.name,
+                        "algorithm": run.algorithm,
+                        "seed": run.seed,
+                        "status": run.status,
+                    },
+                }
+            )
     m = run.measurements
     for i in range(len(m.get("step", []))):
-        features.append({
-            "type": "Feature",
-            "geometry": {"type": "Point", "coordinates": [float(m["lon"][i]), float(m["lat"][i])]},
-            "properties": {"kind": "sample", "run": run.name, "step": _int(m["step"][i]), "vehicle": _int(m["vehicle"][i]),
-                           "node": _int(m["node"][i]), "value": _num(m["value"][i]), "time_s": _num(m["time_s"][i])},
-        })
+        features.append(
+            {
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": [float(m["lon"][i]), float(m["lat"][i])]},
+                "properties": {
+                    "kind": "sample",
+                    "run": run.name,
+                    "step": _int(m["step"][i]),
+                    "vehicle": _int(m["vehicle"][i]),
+                    "node": _int(m["node"][i]),
+                    "value": _num(m["value"][i]),
+                    "time_s": _num(m["time_s"][i]),
+                },
+            }
+        )
     return {"type": "FeatureCollection", "name": run.name, "features": features}
 
 
@@ -94,7 +120,9 @@ def kml(run: Run) -> bytes:
             line = ET.SubElement(mark, q("LineString"))
             ET.SubElement(line, q("tessellate")).text = "1"
             ET.SubElement(line, q("coordinates")).text = " ".join(
-                f"{lo:.8f},{la:.8f},0" for la, lo in zip(rows["lat"], rows["lon"]) if not (math.isnan(la) or math.isnan(lo))
+                f"{lo:.8f},{la:.8f},0"
+                for la, lo in zip(rows["lat"], rows["lon"])
+                if not (math.isnan(la) or math.isnan(lo))
             )
     m = run.measurements
     if len(m.get("step", [])):
@@ -103,9 +131,9 @@ def kml(run: Run) -> bytes:
         for i in range(len(m["step"])):
             mark = ET.SubElement(folder, q("Placemark"))
             ET.SubElement(mark, q("name")).text = f"{m['value'][i]:.4g}"
-            ET.SubElement(mark, q("description")).text = (
-                f"step {int(m['step'][i])}, vehicle {int(m['vehicle'][i])}, node {int(m['node'][i])}, t={m['time_s'][i]:.1f} s"
-            )
+            ET.SubElement(
+                mark, q("description")
+            ).text = f"step {int(m['step'][i])}, vehicle {int(m['vehicle'][i])}, node {int(m['node'][i])}, t={m['time_s'][i]:.1f} s"
             point = ET.SubElement(mark, q("Point"))
             ET.SubElement(point, q("coordinates")).text = f"{m['lon'][i]:.8f},{m['lat'][i]:.8f},0"
     ET.indent(root)
@@ -177,9 +205,24 @@ def waypoints_file(points: list[tuple[float, float]], altitude: float = 0.0) -> 
     if not points:
         return "\n".join(lines) + "\n"
     home = points[0]
-    rows = [(0, 1, FRAME_GLOBAL, home)] + [(i + 1, 0, FRAME_GLOBAL_RELATIVE_ALT, p) for i, p in enumerate(points)]
+    rows = [(0, 1, FRAME_GLOBAL, home)] + [
+        (i + 1, 0, FRAME_GLOBAL_RELATIVE_ALT, p) for i, p in enumerate(points)
+    ]
     for index, current, frame, (lat, lon) in rows:
-        fields = [index, current, frame, CMD_NAV_WAYPOINT, 0, 0, 0, 0, f"{lat:.8f}", f"{lon:.8f}", f"{altitude:.6f}", 1]
+        fields = [
+            index,
+            current,
+            frame,
+            CMD_NAV_WAYPOINT,
+            0,
+            0,
+            0,
+            0,
+            f"{lat:.8f}",
+            f"{lon:.8f}",
+            f"{altitude:.6f}",
+            1,
+        ]
         lines.append("\t".join(str(f) for f in fields))
     return "\n".join(lines) + "\n"
 

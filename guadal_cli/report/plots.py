@@ -51,7 +51,9 @@ def _curve(run: Run, x_col: str, metric: str) -> tuple[np.ndarray, np.ndarray] |
     return x[last], y[last]
 
 
-def band(curves: list[tuple[np.ndarray, np.ndarray]], grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def band(
+    curves: list[tuple[np.ndarray, np.ndarray]], grid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean, std and count per grid point over the curves that reach it (no extrapolation)."""
     stack = np.full((len(curves), len(grid)), np.nan)
     for i, (x, y) in enumerate(curves):
@@ -123,7 +125,9 @@ def run_grid(run: Run) -> Grid | None:
             map_ = None
     if "row" in f and len(f["row"]):
         rows, cols = f["row"].astype(int), f["col"].astype(int)
-    elif map_ is not None and map_.water_nodes == run.manifest.get("map", {}).get("water_nodes", map_.water_nodes):
+    elif map_ is not None and map_.water_nodes == run.manifest.get("map", {}).get(
+        "water_nodes", map_.water_nodes
+    ):
         rows, cols = np.nonzero(map_.mask)
     else:
         return None
@@ -144,7 +148,9 @@ def field_panels(run: Run) -> list[tuple[str, str]]:
 
 def draw_field(ax, grid: Grid, values: np.ndarray, cmap: str, vmin=None, vmax=None):
     cm = colormaps[cmap].with_extremes(bad=LAND)
-    image = ax.imshow(grid.place(values), cmap=cm, vmin=vmin, vmax=vmax, interpolation="nearest", origin="upper")
+    image = ax.imshow(
+        grid.place(values), cmap=cm, vmin=vmin, vmax=vmax, interpolation="nearest", origin="upper"
+    )
     ax.set_xticks([])
     ax.set_yticks([])
     # show the water and a cell of shore around it, not the whole grid
@@ -183,7 +189,15 @@ def final_maps(run: Run, out_dir: Path) -> list[Path]:
         for v, rows in plan.items():
             colour = vehicle_colour(v)
             ax.plot(rows["col"], rows["row"], color=colour, linewidth=1.2, alpha=0.9, label=f"vehicle {v}")
-            ax.plot(rows["col"][-1:], rows["row"][-1:], marker="X", markersize=10, color=colour, markeredgecolor="white", linestyle="none")
+            ax.plot(
+                rows["col"][-1:],
+                rows["row"][-1:],
+                marker="X",
+                markersize=10,
+                color=colour,
+                markeredgecolor="white",
+                linestyle="none",
+            )
         ax.set_title(title)
     if plan:
         fig.axes[0].legend(fontsize="x-small", loc="lower left")
@@ -247,7 +261,15 @@ def gps_track(run: Run, out_dir: Path) -> list[Path]:
     if grid is not None and grid.projection is not None:
         map_ = load_map(run.map_path)
         land = np.ma.masked_where(map_.mask, np.ones(map_.shape))
-        ax.pcolormesh(map_.x, map_.y, land, shading="nearest", cmap=colormaps["Greys"].with_extremes(under=LAND, over=LAND), vmin=2, vmax=3)
+        ax.pcolormesh(
+            map_.x,
+            map_.y,
+            land,
+            shading="nearest",
+            cmap=colormaps["Greys"].with_extremes(under=LAND, over=LAND),
+            vmin=2,
+            vmax=3,
+        )
         water_x, water_y = map_.x[map_.mask], map_.y[map_.mask]
         pad = map_.cell_size_m * 2
         ax.set_xlim(water_x.min() - pad, water_x.max() + pad)
@@ -255,7 +277,16 @@ def gps_track(run: Run, out_dir: Path) -> list[Path]:
     for v, rows in plan.items():
         colour = vehicle_colour(v)
         px, py = proj.to_xy(rows["lat"], rows["lon"])
-        ax.plot(px, py, "--", color=colour, linewidth=1.0, marker="o", markersize=2.5, label=f"vehicle {v} planned")
+        ax.plot(
+            px,
+            py,
+            "--",
+            color=colour,
+            linewidth=1.0,
+            marker="o",
+            markersize=2.5,
+            label=f"vehicle {v} planned",
+        )
         if v in gps:
             gx, gy = proj.to_xy(gps[v]["lat"], gps[v]["lon"])
             dev = deviation.get(v)
@@ -276,4 +307,8 @@ def deviation_summary(run: Run) -> dict[str, float]:
     if not dev:
         return {}
     allv = np.concatenate(list(dev.values()))
-    return {"gps_offtrack_mean_m": float(allv.mean()), "gps_offtrack_max_m": float(allv.max())} if allv.size else {}
+    return (
+        {"gps_offtrack_mean_m": float(allv.mean()), "gps_offtrack_max_m": float(allv.max())}
+        if allv.size
+        else {}
+    )

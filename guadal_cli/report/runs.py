@@ -193,7 +193,9 @@ def _read_run(directory: Path) -> Run:
     try:
         mission = yaml.safe_load(mission_path.read_text()) if mission_path.is_file() else {}
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise GuadalError(f"run directory '{directory}' has an unreadable mission.resolved.yaml ({exc}).") from exc
+        raise GuadalError(
+            f"run directory '{directory}' has an unreadable mission.resolved.yaml ({exc})."
+        ) from exc
     return Run(path=directory, manifest=manifest, mission=mission if isinstance(mission, dict) else {})
 
 
@@ -211,7 +213,9 @@ def find_runs(paths: list[Path]) -> list[Run]:
     unique = list(dict.fromkeys(p.resolve() for p in found))
     if not unique:
         shown = ", ".join(f"'{p}'" for p in paths) or "nothing"
-        raise GuadalError(f"no run directories found in {shown}: a run directory is what 'guadal run' writes (it holds manifest.json).")
+        raise GuadalError(
+            f"no run directories found in {shown}: a run directory is what 'guadal run' writes (it holds manifest.json)."
+        )
     runs = [_read_run(p) for p in unique]
     _name_runs(runs)
     return runs

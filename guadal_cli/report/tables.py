@@ -35,7 +35,18 @@ def run_table(runs: list[Run], metrics: list[str]) -> tuple[list[str], list[list
     rows = []
     for r in runs:
         vehicles = r.manifest.get("vehicles")
-        rows.append([r.name, r.status, r.algorithm, r.seed, r.level, vehicles, r.steps, *(r.final(m) for m in metrics)])
+        rows.append(
+            [
+                r.name,
+                r.status,
+                r.algorithm,
+                r.seed,
+                r.level,
+                vehicles,
+                r.steps,
+                *(r.final(m) for m in metrics),
+            ]
+        )
     return columns, rows
 
 
@@ -47,7 +58,9 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
     return float(arr.mean()), float(arr.std(ddof=1)) if arr.size > 1 else math.nan
 
 
-def group_table(groups: list[Group], group_fields: list[str], metrics: list[str]) -> tuple[list[str], list[list]]:
+def group_table(
+    groups: list[Group], group_fields: list[str], metrics: list[str]
+) -> tuple[list[str], list[list]]:
     """Per group: its field values, status, run count, then ``<metric>_mean`` and ``<metric>_std``."""
     columns = [*group_fields, "status", "runs"]
     for m in metrics:
@@ -100,7 +113,9 @@ def folded(columns: list[str], rows: list[list]) -> tuple[list[str], list[list[s
                 if math.isnan(mean):
                     cells.append("")
                 else:
-                    cells.append(cell_text(mean) if math.isnan(std) else f"{cell_text(mean)} ± {cell_text(std)}")
+                    cells.append(
+                        cell_text(mean) if math.isnan(std) else f"{cell_text(mean)} ± {cell_text(std)}"
+                    )
             else:
                 cells.append(cell_text(row[p]))
         out_rows.append(cells)
@@ -112,12 +127,22 @@ def to_csv(columns: list[str], rows: list[list]) -> str:
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(columns)
     for row in rows:
-        writer.writerow(["" if v is None or (isinstance(v, float) and math.isnan(v)) else repr(v) if isinstance(v, float) else v for v in row])
+        writer.writerow(
+            [
+                ""
+                if v is None or (isinstance(v, float) and math.isnan(v))
+                else repr(v)
+                if isinstance(v, float)
+                else v
+                for v in row
+            ]
+        )
     return buf.getvalue()
 
 
 def to_records(columns: list[str], rows: list[list]) -> list[dict]:
     """Rows as JSON-ready objects (NaN becomes null, which JSON has and NaN is not)."""
+
     def clean(v):
         return None if isinstance(v, float) and math.isnan(v) else v
 
@@ -145,7 +170,9 @@ def to_html(columns: list[str], rows: list[list[str]], status_column: str | None
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
-def by_environment(columns: list[str], rows: list[list[str]], environments: list[str]) -> list[tuple[str, list[str], list[list[str]]]]:
+def by_environment(
+    columns: list[str], rows: list[list[str]], environments: list[str]
+) -> list[tuple[str, list[str], list[list[str]]]]:
     """Rendered rows split by environment, each part without the columns it leaves empty.
 
     Environments record different task metrics, so one wide table of mostly empty cells

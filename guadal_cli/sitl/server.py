@@ -83,9 +83,13 @@ class SitlServer:
             raise GuadalError(f"--vehicles must be between 1 and {MAX_VEHICLES} (got {options.vehicles}).")
         last = 10 * (options.vehicles - 1)
         if options.base_port and not 0 < options.base_port <= 65535 - last:
-            raise GuadalError(f"--base-port {options.base_port} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}, or 0.")
+            raise GuadalError(
+                f"--base-port {options.base_port} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}, or 0."
+            )
         if options.udp_out and not 0 < options.udp_out[1] <= 65535 - last:
-            raise GuadalError(f"--udp-out port {options.udp_out[1]} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}.")
+            raise GuadalError(
+                f"--udp-out port {options.udp_out[1]} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}."
+            )
         if options.speedup <= 0:
             raise GuadalError(f"--speedup must be positive (got {options.speedup}).")
         if options.max_speed <= 0:
@@ -93,9 +97,18 @@ class SitlServer:
         if options.max_rate <= 0:
             raise GuadalError(f"--max-rate must be positive (got {options.max_rate}).")
         if options.serial and len(options.serial) not in (1, options.vehicles):
-            raise GuadalError(f"--serial gives {len(options.serial)} devices for {options.vehicles} vehicles; give one, or one per vehicle.")
-        if options.serial and len(options.serial) == 1 and options.vehicles > 1 and options.serial[0] != "pty":
-            raise GuadalError("one --serial device cannot serve several vehicles; give one per vehicle, or 'pty'.")
+            raise GuadalError(
+                f"--serial gives {len(options.serial)} devices for {options.vehicles} vehicles; give one, or one per vehicle."
+            )
+        if (
+            options.serial
+            and len(options.serial) == 1
+            and options.vehicles > 1
+            and options.serial[0] != "pty"
+        ):
+            raise GuadalError(
+                "one --serial device cannot serve several vehicles; give one per vehicle, or 'pty'."
+            )
         self.options = options
         self.selector = selectors.DefaultSelector()
         self.clock: SimClock | None = None
@@ -142,14 +155,18 @@ class SitlServer:
                     try:
                         UdpOut(link, host, port)
                     except OSError as exc:
-                        raise GuadalError(f"cannot send UDP to {host}:{port} for vehicle {sysid} ({exc}).") from None
+                        raise GuadalError(
+                            f"cannot send UDP to {host}:{port} for vehicle {sysid} ({exc})."
+                        ) from None
                 serial = None
                 if opts.serial:
                     path = opts.serial[i] if len(opts.serial) > 1 else opts.serial[0]
                     try:
                         serial = SerialPort(link, path, opts.baud)
                     except (OSError, ValueError) as exc:
-                        raise GuadalError(f"cannot open serial device {path!r} for vehicle {sysid}: {exc}.") from None
+                        raise GuadalError(
+                            f"cannot open serial device {path!r} for vehicle {sysid}: {exc}."
+                        ) from None
                 self.serials.append(serial)
                 self.boats.append(boat)
         except GuadalError:
@@ -172,7 +189,9 @@ class SitlServer:
                     "sysid": boat.sysid,
                     "tcp": listener.port,
                     "udp_out": (
-                        f"{self.options.udp_out[0]}:{self.options.udp_out[1] + 10 * i}" if self.options.udp_out else None
+                        f"{self.options.udp_out[0]}:{self.options.udp_out[1] + 10 * i}"
+                        if self.options.udp_out
+                        else None
                     ),
                     "serial": serial.path if serial else None,
                     "home": list(boat.config.home),
@@ -200,7 +219,9 @@ class SitlServer:
     def _restream(self, index: int):
         def changed(msg_id: int) -> None:
             now = time.monotonic()
-            self._schedule(index, msg_id, self.clock.sim(now) + (self.boats[index].streams.interval(msg_id) or 0), now)
+            self._schedule(
+                index, msg_id, self.clock.sim(now) + (self.boats[index].streams.interval(msg_id) or 0), now
+            )
 
         return changed
 
@@ -296,7 +317,11 @@ class SitlServer:
 def stats(server: SitlServer) -> list[dict]:
     """Per-vehicle counters, for the shutdown summary."""
     return [
-        dict(sysid=b.sysid, dropped_packets=link.dropped_packets, **b.counters, odometer_m=round(b.hull.odometer, 1))
+        dict(
+            sysid=b.sysid,
+            dropped_packets=link.dropped_packets,
+            **b.counters,
+            odometer_m=round(b.hull.odometer, 1),
+        )
         for b, link in zip(server.boats, server.links)
     ]
-

@@ -33,7 +33,12 @@ HOME_POSITION = mavlink.MAVLINK_MSG_ID_HOME_POSITION
 
 #: ArduPilot's stream groups (REQUEST_DATA_STREAM ids), restricted to what the emulator sends
 STREAM_GROUPS = {
-    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: (SYS_STATUS, GPS_RAW_INT, NAV_CONTROLLER_OUTPUT, POSITION_TARGET_GLOBAL_INT),
+    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: (
+        SYS_STATUS,
+        GPS_RAW_INT,
+        NAV_CONTROLLER_OUTPUT,
+        POSITION_TARGET_GLOBAL_INT,
+    ),
     mavlink.MAV_DATA_STREAM_POSITION: (GLOBAL_POSITION_INT,),
     mavlink.MAV_DATA_STREAM_EXTRA1: (ATTITUDE,),
     mavlink.MAV_DATA_STREAM_EXTRA2: (VFR_HUD,),
@@ -139,7 +144,9 @@ def _reported_position(boat: EmulatedBoat) -> tuple[int, int]:
 def _course_cdeg(boat: EmulatedBoat) -> tuple[float, int]:
     ve, vn = boat.hull.ground_velocity()
     speed = math.hypot(ve, vn)
-    course = math.degrees(math.atan2(ve, vn)) % 360.0 if speed > 0.01 else math.degrees(boat.hull.heading) % 360.0
+    course = (
+        math.degrees(math.atan2(ve, vn)) % 360.0 if speed > 0.01 else math.degrees(boat.hull.heading) % 360.0
+    )
     return speed, int(round(course * 100)) % 36000
 
 
@@ -159,8 +166,22 @@ def _gps_raw_int(boat: EmulatedBoat) -> None:
     speed, cog = _course_cdeg(boat)
     h_acc = int(max(boat.config.gps_noise_m, 0.3) * 1000)
     boat.mav.gps_raw_int_send(
-        int(boat.time_s * 1e6), mavlink.GPS_FIX_TYPE_3D_FIX, lat, lon, 0, 121, 200, int(speed * 100), cog, 10,
-        0, h_acc, 500, 200, 0, 0,
+        int(boat.time_s * 1e6),
+        mavlink.GPS_FIX_TYPE_3D_FIX,
+        lat,
+        lon,
+        0,
+        121,
+        200,
+        int(speed * 100),
+        cog,
+        10,
+        0,
+        h_acc,
+        500,
+        200,
+        0,
+        0,
     )
 
 
@@ -188,7 +209,9 @@ def _nav_controller_output(boat: EmulatedBoat) -> None:
         bearing = math.degrees(boat.bearing_to(goal.east, goal.north))
     bearing = int(round(bearing)) % 360
     bearing = bearing - 360 if bearing > 180 else bearing
-    boat.mav.nav_controller_output_send(0.0, 0.0, bearing, bearing, min(int(round(dist)), 65535), 0.0, 0.0, 0.0)
+    boat.mav.nav_controller_output_send(
+        0.0, 0.0, bearing, bearing, min(int(round(dist)), 65535), 0.0, 0.0, 0.0
+    )
 
 
 def _position_target_global_int(boat: EmulatedBoat) -> None:
@@ -199,8 +222,20 @@ def _position_target_global_int(boat: EmulatedBoat) -> None:
     lat, lon = boat.frame.to_global(goal.east, goal.north)
     type_mask = 0xF000 | 0x0DF8  # Rover: position only (velocity, accel, yaw, yaw rate ignored)
     boat.mav.position_target_global_int_send(
-        boat.time_boot_ms, mavlink.MAV_FRAME_GLOBAL, type_mask, int(round(lat * 1e7)), int(round(lon * 1e7)),
-        0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+        boat.time_boot_ms,
+        mavlink.MAV_FRAME_GLOBAL,
+        type_mask,
+        int(round(lat * 1e7)),
+        int(round(lon * 1e7)),
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
     )
 
 
@@ -226,8 +261,15 @@ def _battery_status(boat: EmulatedBoat) -> None:
     mv, ca, pct = _battery(boat)
     cells = [mv // 4] * 4 + [65535] * 6
     boat.mav.battery_status_send(
-        0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO, 32767, cells, ca,
-        int(boat.consumed_mah), -1, pct,
+        0,
+        mavlink.MAV_BATTERY_FUNCTION_ALL,
+        mavlink.MAV_BATTERY_TYPE_LIPO,
+        32767,
+        cells,
+        ca,
+        int(boat.consumed_mah),
+        -1,
+        pct,
     )
 
 
@@ -236,12 +278,16 @@ def _system_time(boat: EmulatedBoat) -> None:
 
 
 def _autopilot_version(boat: EmulatedBoat) -> None:
-    boat.mav.autopilot_version_send(CAPABILITIES, 0, 0, 0, 0, b"\0" * 8, b"\0" * 8, b"\0" * 8, 0, 0, boat.sysid)
+    boat.mav.autopilot_version_send(
+        CAPABILITIES, 0, 0, 0, 0, b"\0" * 8, b"\0" * 8, b"\0" * 8, 0, 0, boat.sysid
+    )
 
 
 def _home_position(boat: EmulatedBoat) -> None:
     lat, lon = boat.config.home
-    boat.mav.home_position_send(int(round(lat * 1e7)), int(round(lon * 1e7)), 0, 0.0, 0.0, 0.0, [1.0, 0, 0, 0], 0, 0, 0)
+    boat.mav.home_position_send(
+        int(round(lat * 1e7)), int(round(lon * 1e7)), 0, 0.0, 0.0, 0.0, [1.0, 0, 0, 0], 0, 0, 0
+    )
 
 
 _BUILDERS: dict[int, Callable[[EmulatedBoat], None]] = {
@@ -258,4 +304,3 @@ _BUILDERS: dict[int, Callable[[EmulatedBoat], None]] = {
     AUTOPILOT_VERSION: _autopilot_version,
     HOME_POSITION: _home_position,
 }
-

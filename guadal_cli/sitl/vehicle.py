@@ -110,7 +110,7 @@ class EmulatedBoat:
             return
         self._statustext_id = self._statustext_id % 0xFFFF + 1
         for seq, start in enumerate(range(0, len(raw), 50)):
-            self.mav.statustext_send(severity, raw[start:start + 50], self._statustext_id, seq)
+            self.mav.statustext_send(severity, raw[start : start + 50], self._statustext_id, seq)
 
     def _default_speed(self) -> float:
         wp_speed = self.param("WP_SPEED")
@@ -230,7 +230,9 @@ class EmulatedBoat:
         """Rover takes a new speed only while GUIDED drives to a target, or in RTL/SMART_RTL
         (even after arriving home): loitering and stopped submodes have no speed to change."""
         goal = self.goal
-        driving = self.mode in (RTL, SMART_RTL) or (self.mode == GUIDED and goal is not None and goal.kind == "wp")
+        driving = self.mode in (RTL, SMART_RTL) or (
+            self.mode == GUIDED and goal is not None and goal.kind == "wp"
+        )
         if not driving or not math.isfinite(speed) or speed <= 0:
             return mavlink.MAV_RESULT_FAILED
         self.nav_speed = speed
@@ -318,7 +320,9 @@ class EmulatedBoat:
         if command == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
             return self._send_message_interval(_as_int(p[0]))
         if command == mavlink.MAV_CMD_REQUEST_MESSAGE:
-            return mavlink.MAV_RESULT_ACCEPTED if send_once(self, _as_int(p[0])) else mavlink.MAV_RESULT_DENIED
+            return (
+                mavlink.MAV_RESULT_ACCEPTED if send_once(self, _as_int(p[0])) else mavlink.MAV_RESULT_DENIED
+            )
         if command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             send_once(self, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
             return mavlink.MAV_RESULT_ACCEPTED
@@ -388,13 +392,29 @@ class EmulatedBoat:
     def _on_mission_request_int(self, msg) -> None:
         if msg.mission_type != mavlink.MAV_MISSION_TYPE_MISSION or msg.seq != 0:
             self.mav.mission_ack_send(
-                msg.get_srcSystem(), msg.get_srcComponent(), mavlink.MAV_MISSION_INVALID_SEQUENCE, msg.mission_type
+                msg.get_srcSystem(),
+                msg.get_srcComponent(),
+                mavlink.MAV_MISSION_INVALID_SEQUENCE,
+                msg.mission_type,
             )
             return
         lat, lon = self.config.home
         self.mav.mission_item_int_send(
-            msg.get_srcSystem(), msg.get_srcComponent(), 0, mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT,
-            0, 1, 0, 0, 0, 0, int(round(lat * 1e7)), int(round(lon * 1e7)), 0.0, msg.mission_type,
+            msg.get_srcSystem(),
+            msg.get_srcComponent(),
+            0,
+            mavlink.MAV_FRAME_GLOBAL,
+            mavlink.MAV_CMD_NAV_WAYPOINT,
+            0,
+            1,
+            0,
+            0,
+            0,
+            0,
+            int(round(lat * 1e7)),
+            int(round(lon * 1e7)),
+            0.0,
+            msg.mission_type,
         )
 
     def _on_mission_ack(self, msg) -> None:

@@ -30,7 +30,13 @@ from ..maps.format import haversine_m
 from .config import BridgeConfig, parse_broker_url
 from .lowlevel import LowLevelPlanner, Waypoint
 from .mavlink_link import (
-    COMMAND_NAMES, MODE_GUIDED, MODE_HOLD, RESULT_NAMES, AutopilotLink, mavlink, mode_name,
+    COMMAND_NAMES,
+    MODE_GUIDED,
+    MODE_HOLD,
+    RESULT_NAMES,
+    AutopilotLink,
+    mavlink,
+    mode_name,
 )
 from .sensors import SensorError
 
@@ -44,8 +50,16 @@ LINK_LOST_S = 3.0  # autopilot heartbeats are 1 Hz: three missed ones mean the l
 ARRIVAL_GATE_FACTOR = 4.0  # MISSION_ITEM_REACHED counts only this close (× radius) to the target
 
 COUNTERS = (
-    "bad_payload", "wrong_vehicle", "stale_seq", "duplicate_seq", "command_failed", "arm_failed",
-    "mission_ack_error", "sensor_error", "rejected_goto", "failsafe",
+    "bad_payload",
+    "wrong_vehicle",
+    "stale_seq",
+    "duplicate_seq",
+    "command_failed",
+    "arm_failed",
+    "mission_ack_error",
+    "sensor_error",
+    "rejected_goto",
+    "failsafe",
 )
 
 
@@ -128,14 +142,21 @@ class Bridge:
         and re-publishes its status on every reconnect."""
         broker = parse_broker_url(self.config.broker)
         client = mqtt.Client(
-            mqtt.CallbackAPIVersion.VERSION2, client_id=self._client_id(), clean_session=True,
+            mqtt.CallbackAPIVersion.VERSION2,
+            client_id=self._client_id(),
+            clean_session=True,
             protocol=mqtt.MQTTv311,
         )
         if broker["username"]:
             client.username_pw_set(broker["username"], broker["password"])
         if broker["tls"]:
             client.tls_set(ca_certs=self.config.tls_ca)
-        client.will_set(self._topic("status"), messages.encode("status", state="offline", vehicle=self.vid), qos=1, retain=True)
+        client.will_set(
+            self._topic("status"),
+            messages.encode("status", state="offline", vehicle=self.vid),
+            qos=1,
+            retain=True,
+        )
         client.reconnect_delay_set(min_delay=0.2, max_delay=5)
         client.on_connect = self._on_connect
         client.on_disconnect = self._on_disconnect
@@ -173,7 +194,9 @@ class Bridge:
             "failsafe_reason": self.failsafe_reason,
             "arm_error": self.arm_error,
             "autopilot_text": self.autopilot_text,
-            "goal": None if self.goal is None else {"seq": self.goal.seq, "node": self.goal.node, "status": self.goal.status},
+            "goal": None
+            if self.goal is None
+            else {"seq": self.goal.seq, "node": self.goal.node, "status": self.goal.status},
             "last_seq": self.last_seq,
             "counters": dict(self.counters),
         }
@@ -220,7 +243,11 @@ class Bridge:
             return
         if "vehicle" in data and data["vehicle"] != self.vid:
             self.count("wrong_vehicle")
-            log.warning("ignored a command: it names vehicle %r but came on the topic of vehicle %d.", data["vehicle"], self.vid)
+            log.warning(
+                "ignored a command: it names vehicle %r but came on the topic of vehicle %d.",
+                data["vehicle"],
+                self.vid,
+            )
             self.publish_status()
             return
         seq, kind = data["seq"], data["type"]
@@ -248,7 +275,9 @@ class Bridge:
 
     def _repeat_answer(self, kind: str, seq: int) -> None:
         if kind != self.last_kind:
-            log.warning("seq %d was a %s, now it comes as a %s; answering nothing.", seq, self.last_kind, kind)
+            log.warning(
+                "seq %d was a %s, now it comes as a %s; answering nothing.", seq, self.last_kind, kind
+            )
         elif kind == "goto":
             for goal in (self.goal, self.rejected):
                 if goal is not None and goal.seq == seq:
@@ -293,10 +322,18 @@ class Bridge:
     def start_measure(self, data: dict) -> None:
         s = self.link.snapshot()
         if self.sensor is None:
-            self.last_reply = ("ack", self._ack(data["seq"], "measure", "failed", "this bridge has no sensor (start it with --sensor)."))
+            self.last_reply = (
+                "ack",
+                self._ack(
+                    data["seq"], "measure", "failed", "this bridge has no sensor (start it with --sensor)."
+                ),
+            )
             return
         if s.lat is None:
-            self.last_reply = ("ack", self._ack(data["seq"], "measure", "failed", "the autopilot has not reported a position yet."))
+            self.last_reply = (
+                "ack",
+                self._ack(data["seq"], "measure", "failed", "the autopilot has not reported a position yet."),
+            )
             return
         self.last_reply = None
         self._sensor_jobs.put((data["seq"], data["node"], s.lat, s.lon, s.time_boot_s))
@@ -323,8 +360,9 @@ class Bridge:
             log.warning("measure seq %d failed: %s", seq, value)
             reply = ("ack", self._ack(seq, "measure", "failed", value))
         else:
-            payload = messages.encode("measurement", seq=seq, node=node, value=value, lat=lat, lon=lon,
-                                      t=t, vehicle=self.vid)
+            payload = messages.encode(
+                "measurement", seq=seq, node=node, value=value, lat=lat, lon=lon, t=t, vehicle=self.vid
+            )
             self._publish("measurement", payload)
             reply = ("measurement", payload)
         if seq == self.last_seq:
@@ -378,7 +416,9 @@ class Bridge:
             self.enter_hold("failsafe")
         else:
             # a pilot (MANUAL, ...) or another autopilot mode has the boat: not ours to stop
-            log.warning("FAILSAFE: %s; vehicle left in %s, which the bridge does not command", reason, mode_name(mode))
+            log.warning(
+                "FAILSAFE: %s; vehicle left in %s, which the bridge does not command", reason, mode_name(mode)
+            )
             self.state = "failsafe"
         self.publish_status(force=True)
 
@@ -455,7 +495,11 @@ class Bridge:
         d = self._distance(s, goal.waypoint)
         gate = max(ARRIVAL_GATE_FACTOR * self.config.arrival_radius, 5.0)
         if d is None or d > gate:
-            log.debug("MISSION_ITEM_REACHED %.1f m from waypoint %d: taken as late, for an earlier target", d or -1, goal.index)
+            log.debug(
+                "MISSION_ITEM_REACHED %.1f m from waypoint %d: taken as late, for an earlier target",
+                d or -1,
+                goal.index,
+            )
             return
         if goal.final:
             self._check_arrival(s, reached_message=True)
@@ -505,8 +549,11 @@ class Bridge:
             self._ack_goal(goal)
             self.publish_status()
         elif reached_message:
-            log.info("autopilot reports arrival %.1f m from the target; waiting to be within %.1f m", d,
-                     self.config.arrival_radius)
+            log.info(
+                "autopilot reports arrival %.1f m from the target; waiting to be within %.1f m",
+                d,
+                self.config.arrival_radius,
+            )
 
     def drive(self) -> None:
         """Advance the active goal: mode, target (re)sends, arrival."""
@@ -517,7 +564,10 @@ class Bridge:
         if s.custom_mode == MODE_GUIDED:
             goal.seen_guided = True
         elif goal.seen_guided and self.want_mode is None:
-            goal.status, goal.reason = "failed", f"the vehicle left GUIDED (now {s.mode}); someone else has control."
+            goal.status, goal.reason = (
+                "failed",
+                f"the vehicle left GUIDED (now {s.mode}); someone else has control.",
+            )
             log.warning("goto seq %d: %s", goal.seq, goal.reason)
             self._ack_goal(goal)
             self.publish_status()
@@ -535,8 +585,16 @@ class Bridge:
         if s.lat is None:
             return
         payload = messages.encode(
-            "telemetry", t=s.time_boot_s, lat=s.lat, lon=s.lon, heading=s.heading, speed=s.speed,
-            mode=s.mode, armed=s.armed, battery=s.battery, vehicle=self.vid,
+            "telemetry",
+            t=s.time_boot_s,
+            lat=s.lat,
+            lon=s.lon,
+            heading=s.heading,
+            speed=s.speed,
+            mode=s.mode,
+            armed=s.armed,
+            battery=s.battery,
+            vehicle=self.vid,
         )
         self._publish("telemetry", payload, qos=0)
 
@@ -564,7 +622,8 @@ class Bridge:
             self.request_streams()
         self.link_lost = lost
         if (
-            self.last_contact is not None and self.state != "failsafe"
+            self.last_contact is not None
+            and self.state != "failsafe"
             and now - self.last_contact > self.config.failsafe_timeout
         ):
             self.trigger_failsafe(f"no planner message for {self.config.failsafe_timeout:g} s")
@@ -629,7 +688,9 @@ class Bridge:
                 self.link.set_mode(MODE_HOLD)
             except Exception as exc:
                 log.warning("could not send HOLD on exit: %s", exc)
-        info = self._publish("status", messages.encode("status", state="offline", vehicle=self.vid), retain=True)
+        info = self._publish(
+            "status", messages.encode("status", state="offline", vehicle=self.vid), retain=True
+        )
         if self.mqtt.is_connected():
             try:
                 info.wait_for_publish(timeout=2.0)

@@ -21,27 +21,39 @@ class BridgeConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     vehicle_id: int = Field(ge=0, description="Vehicle number N in the topics F/vehicle/N/...")
-    mavlink: str = Field(description="pymavlink connection string: tcp:HOST:PORT, udpin:HOST:PORT, /dev/ttyACM0...")
+    mavlink: str = Field(
+        description="pymavlink connection string: tcp:HOST:PORT, udpin:HOST:PORT, /dev/ttyACM0..."
+    )
     baud: int = Field(default=115200, gt=0, description="Baud rate of a serial autopilot link.")
-    broker: str = Field(default="mqtt://127.0.0.1:1883", description="mqtt://[user:pass@]host:port or mqtts:// for TLS.")
+    broker: str = Field(
+        default="mqtt://127.0.0.1:1883", description="mqtt://[user:pass@]host:port or mqtts:// for TLS."
+    )
     map: str = Field(description="The guadal map file the planner uses.")
     fleet: str = Field(default="guadal", min_length=1, description="Topic prefix shared with the planner.")
     sensor: str | dict | None = Field(default=None, description="NAME:VALUE or {type: NAME, ...}.")
     arm: bool = Field(default=False, description="Arm at start-up (retried until the autopilot agrees).")
     guided: bool = Field(default=False, description="Set GUIDED at start-up.")
     failsafe_timeout: float = Field(default=10.0, gt=0, description="Seconds of planner silence before HOLD.")
-    arrival_radius: float = Field(default=2.0, gt=0, description="Metres from the target that count as reached.")
+    arrival_radius: float = Field(
+        default=2.0, gt=0, description="Metres from the target that count as reached."
+    )
     telemetry_hz: float = Field(default=2.0, gt=0, le=50)
-    refine: int = Field(default=3, ge=1, le=10, description="High-resolution factor of the path-planning grid.")
+    refine: int = Field(
+        default=3, ge=1, le=10, description="High-resolution factor of the path-planning grid."
+    )
     waypoint_command: Literal["position_target", "mission_item"] = Field(
         default="position_target",
         description="SET_POSITION_TARGET_GLOBAL_INT (silent) or MISSION_ITEM_INT current=2 (acknowledged).",
     )
     arm_retry_interval: float = Field(default=5.0, gt=0)
     hold_on_exit: bool = Field(default=True, description="Put the vehicle in HOLD when the bridge stops.")
-    connect_timeout: float = Field(default=60.0, gt=0, description="Seconds to wait for the autopilot's heartbeat.")
+    connect_timeout: float = Field(
+        default=60.0, gt=0, description="Seconds to wait for the autopilot's heartbeat."
+    )
     source_system: int = Field(default=255, ge=1, le=255, description="MAVLink system id of the bridge.")
-    tls_ca: str | None = Field(default=None, description="CA certificate file for mqtts:// (default: system CAs).")
+    tls_ca: str | None = Field(
+        default=None, description="CA certificate file for mqtts:// (default: system CAs)."
+    )
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
     # where relative paths in the file are resolved (not a user setting)
@@ -68,7 +80,9 @@ def load_config(path: Path | None, overrides: dict) -> BridgeConfig:
         if loaded is None:
             loaded = {}
         if not isinstance(loaded, dict):
-            raise GuadalError(f"{where} must be a mapping of settings (vehicle_id: 0, mavlink: ..., map: ...).")
+            raise GuadalError(
+                f"{where} must be a mapping of settings (vehicle_id: 0, mavlink: ..., map: ...)."
+            )
         data.update(loaded)
         data["base_dir"] = path.parent
         data["sensor_base_dir"] = path.parent
@@ -89,9 +103,13 @@ def parse_broker_url(url: str) -> dict:
         parts = urlsplit(url)
         port = parts.port
     except ValueError as exc:
-        raise GuadalError(f"broker URL '{url}' is not valid ({exc}); use mqtt://host:port or mqtt://user:password@host:port.") from exc
+        raise GuadalError(
+            f"broker URL '{url}' is not valid ({exc}); use mqtt://host:port or mqtt://user:password@host:port."
+        ) from exc
     if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname:
-        raise GuadalError(f"broker URL '{url}' must look like mqtt://host:port or mqtt://user:password@host:port (mqtts:// for TLS).")
+        raise GuadalError(
+            f"broker URL '{url}' must look like mqtt://host:port or mqtt://user:password@host:port (mqtts:// for TLS)."
+        )
     tls = parts.scheme == "mqtts"
     return {
         "host": parts.hostname,

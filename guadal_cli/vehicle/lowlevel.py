@@ -74,8 +74,12 @@ def refine_map(map_: Map, factor: int) -> Map:
     return Map(
         mask=mask,
         cell_size_m=fine,
-        reference={"row": ref["row"] * factor + factor // 2, "col": ref["col"] * factor + factor // 2,
-                   "lat": ref["lat"], "lon": ref["lon"]},
+        reference={
+            "row": ref["row"] * factor + factor // 2,
+            "col": ref["col"] * factor + factor // 2,
+            "lat": ref["lat"],
+            "lon": ref["lon"],
+        },
         name=f"{map_.name} (x{factor})",
         latlon_grid=(lat, lon),
     )
@@ -166,8 +170,12 @@ class LowLevelPlanner:
         goal = self.fine.nearest_node(to_lat, to_lon)
         cells = self.fine.shortest_path(start, goal)
         if not cells:
-            raise GuadalError(f"no water path from {from_lat:.7f},{from_lon:.7f} to {to_lat:.7f},{to_lon:.7f}.")
-        points = [self._xy(from_lat, from_lon)] + [self.fine.xy[n] for n in cells] + [self._xy(to_lat, to_lon)]
+            raise GuadalError(
+                f"no water path from {from_lat:.7f},{from_lon:.7f} to {to_lat:.7f},{to_lon:.7f}."
+            )
+        points = (
+            [self._xy(from_lat, from_lon)] + [self.fine.xy[n] for n in cells] + [self._xy(to_lat, to_lon)]
+        )
         keep = self._pull_tight(points)
         waypoints = []
         for i in keep[1:]:

@@ -68,11 +68,16 @@ class VehicleState:
 class AutopilotLink:
     """A pymavlink connection to one vehicle."""
 
-    def __init__(self, connection: str, baud: int = 115200, source_system: int = 255, source_component: int = 191):
+    def __init__(
+        self, connection: str, baud: int = 115200, source_system: int = 255, source_component: int = 191
+    ):
         self.connection = connection
         try:
             self.master = mavutil.mavlink_connection(
-                connection, baud=baud, source_system=source_system, source_component=source_component,
+                connection,
+                baud=baud,
+                source_system=source_system,
+                source_component=source_component,
                 autoreconnect=True,
             )
         except Exception as exc:  # pymavlink raises OSError, serial errors, ValueError...
@@ -183,7 +188,9 @@ class AutopilotLink:
                 s.heading = float(msg.heading)
             elif kind == "SYS_STATUS":
                 s.battery = None if msg.battery_remaining < 0 else float(msg.battery_remaining)
-                s.battery_voltage = None if msg.voltage_battery in (0, 65535) else msg.voltage_battery / 1000.0
+                s.battery_voltage = (
+                    None if msg.voltage_battery in (0, 65535) else msg.voltage_battery / 1000.0
+                )
             elif kind == "NAV_CONTROLLER_OUTPUT":
                 s.wp_dist = float(msg.wp_dist)
 
@@ -217,17 +224,41 @@ class AutopilotLink:
     def position_target(self, lat: float, lon: float) -> None:
         with self._lock:
             self.master.mav.set_position_target_global_int_send(
-                self._boot_ms(), self.target_system, self.target_component,
-                mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, POSITION_TARGET_MASK,
-                int(round(lat * 1e7)), int(round(lon * 1e7)), 0.0,
-                0, 0, 0, 0, 0, 0, 0, 0,
+                self._boot_ms(),
+                self.target_system,
+                self.target_component,
+                mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                POSITION_TARGET_MASK,
+                int(round(lat * 1e7)),
+                int(round(lon * 1e7)),
+                0.0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
             )
 
     def guided_mission_item(self, lat: float, lon: float) -> None:
         """A guided target that is acknowledged (MISSION_ACK), for links where that matters."""
         with self._lock:
             self.master.mav.mission_item_int_send(
-                self.target_system, self.target_component, 0, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-                mavlink.MAV_CMD_NAV_WAYPOINT, 2, 1, 0, 0, 0, 0,
-                int(round(lat * 1e7)), int(round(lon * 1e7)), 0.0, mavlink.MAV_MISSION_TYPE_MISSION,
+                self.target_system,
+                self.target_component,
+                0,
+                mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                mavlink.MAV_CMD_NAV_WAYPOINT,
+                2,
+                1,
+                0,
+                0,
+                0,
+                0,
+                int(round(lat * 1e7)),
+                int(round(lon * 1e7)),
+                0.0,
+                mavlink.MAV_MISSION_TYPE_MISSION,
             )

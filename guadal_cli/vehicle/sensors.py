@@ -62,7 +62,7 @@ class SyntheticSensor:
         noise_std: float = Field(default=0.0, ge=0, description="Standard deviation of added Gaussian noise.")
         seed: int | None = Field(default=None, description="Seed of the noise generator.")
 
-    def __init__(self, config: "SyntheticSensor.Config", context: SensorContext):
+    def __init__(self, config: SyntheticSensor.Config, context: SensorContext):
         from ..envs.ground_truth import FileField
 
         self.config = config
@@ -92,7 +92,7 @@ class ReplaySensor:
     class Config(_Config):
         path: str = Field(description="CSV with a header: lat,lon,value or node,value.")
 
-    def __init__(self, config: "ReplaySensor.Config", context: SensorContext):
+    def __init__(self, config: ReplaySensor.Config, context: SensorContext):
         path = _resolve(config.path, context.base_dir)
         where = f"sensor replay: '{path}'"
         if not path.is_file():
@@ -113,7 +113,9 @@ class ReplaySensor:
                 elif "node" in columns:
                     node = int(row["node"])
                     if not 0 <= node < graph.n_nodes:
-                        raise GuadalError(f"{where} line {i}: node {node} is not on the map (0..{graph.n_nodes - 1}).")
+                        raise GuadalError(
+                            f"{where} line {i}: node {node} is not on the map (0..{graph.n_nodes - 1})."
+                        )
                     point = tuple(graph.xy[node])
                 else:
                     raise KeyError("lat")
@@ -126,7 +128,9 @@ class ReplaySensor:
             xy.append(point)
             values.append(value)
         if not values:
-            raise GuadalError(f"{where} has no samples (header lat,lon,value or node,value, then one row each).")
+            raise GuadalError(
+                f"{where} has no samples (header lat,lon,value or node,value, then one row each)."
+            )
         self.values = np.array(values)
         self.projection = graph.map.projection
         self.tree = cKDTree(np.array(xy))
@@ -150,7 +154,7 @@ class SerialSensor:
         timeout: float = Field(default=2.0, gt=0, description="Seconds to wait for the answer.")
         command: str = Field(default="READ", description="Line sent to ask for one reading.")
 
-    def __init__(self, config: "SerialSensor.Config", context: SensorContext):
+    def __init__(self, config: SerialSensor.Config, context: SensorContext):
         import serial
 
         self.config = config
@@ -170,7 +174,9 @@ class SerialSensor:
         except (serial.SerialException, OSError) as exc:
             raise SensorError(f"serial probe on '{self.config.port}' failed ({exc}).") from exc
         if not line.endswith(b"\n"):
-            raise SensorError(f"serial probe on '{self.config.port}' did not answer within {self.config.timeout:g} s.")
+            raise SensorError(
+                f"serial probe on '{self.config.port}' did not answer within {self.config.timeout:g} s."
+            )
         text = line.decode("ascii", errors="replace").strip()
         word, _, rest = text.partition(" ")
         if word == "VALUE":
@@ -181,8 +187,12 @@ class SerialSensor:
             if math.isfinite(value):
                 return value
         if word == "ERR":
-            raise SensorError(f"serial probe on '{self.config.port}' reported an error: {rest or 'no reason given'}.")
-        raise SensorError(f"serial probe on '{self.config.port}' answered {text[:60]!r}; expected 'VALUE <number>' or 'ERR <text>'.")
+            raise SensorError(
+                f"serial probe on '{self.config.port}' reported an error: {rest or 'no reason given'}."
+            )
+        raise SensorError(
+            f"serial probe on '{self.config.port}' answered {text[:60]!r}; expected 'VALUE <number>' or 'ERR <text>'."
+        )
 
     def close(self) -> None:
         self.port.close()
@@ -194,7 +204,9 @@ def parse_sensor_option(text: str) -> dict:
 
     name, sep, value = text.partition(":")
     if not sep or not name or not value:
-        raise GuadalError(f"--sensor '{text}' must be NAME:VALUE, e.g. synthetic:truth.csv, replay:log.csv or serial:/dev/ttyUSB0.")
+        raise GuadalError(
+            f"--sensor '{text}' must be NAME:VALUE, e.g. synthetic:truth.csv, replay:log.csv or serial:/dev/ttyUSB0."
+        )
     cls = plugins.load("sensor", name)
     return {"type": name, getattr(cls, "cli_field", "path"): value}
 

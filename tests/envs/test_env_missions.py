@@ -4,13 +4,12 @@ import csv
 
 import pytest
 import yaml
-
+from support import LAKE, ROOT, run_cli
 from typer.testing import CliRunner
 
 from guadal_cli.app import app
 from guadal_cli.mission import prepare
 from guadal_cli.runner import MissionRunner
-from support import LAKE, ROOT, run_cli
 
 CSVS = ("metrics.csv", "trajectory.csv", "measurements.csv", "fields.csv")
 
@@ -46,7 +45,9 @@ def test_the_same_mission_twice_gives_byte_identical_csvs(tmp_path):
     assert collected == sorted(collected) and collected[0] < 0.2 and collected[-1] > 0.9
     assert float(rows[-1]["time_to_50pct"]) <= float(rows[-1]["time_to_90pct"]) <= float(rows[-1]["time_s"])
     total = float(rows[-1]["total_distance"])
-    assert float(rows[-1]["distance_per_item"]) == pytest.approx(total / float(rows[-1]["items_collected"]), rel=1e-6)
+    assert float(rows[-1]["distance_per_item"]) == pytest.approx(
+        total / float(rows[-1]["items_collected"]), rel=1e-6
+    )
 
 
 def test_oil_spill_is_deterministic_too(tmp_path, write_mission):
@@ -58,7 +59,9 @@ def test_oil_spill_is_deterministic_too(tmp_path, write_mission):
 
 
 def test_iou_rises_as_frontier_exploration_uncovers_the_spill(tmp_path):
-    proc = run_cli("run", ROOT / "missions" / "oil_spill_frontier.yaml", "--output", tmp_path / "run", "--quiet")
+    proc = run_cli(
+        "run", ROOT / "missions" / "oil_spill_frontier.yaml", "--output", tmp_path / "run", "--quiet"
+    )
     assert proc.returncode == 0, proc.stderr
     rows = read_csv(tmp_path / "run" / "metrics.csv")
     observed = [float(r["observed_fraction"]) for r in rows]
@@ -104,16 +107,24 @@ def test_new_algorithms_refused_on_gp_in_one_sentence(write_mission):
     assert "'frontier' needs observed" in message and "'gp' does not provide" in message
 
 
-def test_the_spill_advances_with_the_vehicles_clock_at_sitl_and_frontier_sends_the_same_targets(tmp_path, write_mission):
+def test_the_spill_advances_with_the_vehicles_clock_at_sitl_and_frontier_sends_the_same_targets(
+    tmp_path, write_mission
+):
     """Frontier reads only what has been observed, so its targets match sim's even though the
     spill, driven by the vehicles' own clock, evolves differently at sitl."""
     plans, times = {}, {}
     for level in ("sim", "sitl"):
         backend = {"level": "sim"} if level == "sim" else {"level": "sitl", "launch": True, "speedup": 200}
-        path = write_mission(example("oil_spill_frontier", backend=backend, fleet__max_distance=40), name=f"{level}.yaml")
+        path = write_mission(
+            example("oil_spill_frontier", backend=backend, fleet__max_distance=40), name=f"{level}.yaml"
+        )
         result = MissionRunner(prepare(path), output=tmp_path / level).run()
         assert result.status == "complete"
-        plans[level] = [(r["step"], r["vehicle"], r["node"]) for r in read_csv(tmp_path / level / "trajectory.csv") if r["source"] == "plan"]
+        plans[level] = [
+            (r["step"], r["vehicle"], r["node"])
+            for r in read_csv(tmp_path / level / "trajectory.csv")
+            if r["source"] == "plan"
+        ]
         times[level] = [float(r["time_s"]) for r in read_csv(tmp_path / level / "metrics.csv")]
         masses = [float(r["total_mass"]) for r in read_csv(tmp_path / level / "metrics.csv")]
         assert masses[-1] > masses[0]  # the continuous source released with mission time

@@ -4,12 +4,12 @@ import math
 
 import numpy as np
 import pytest
+from support import LAKE
 
 from guadal_cli.envs.oil_spill import OilSpillConfig, OilSpillEnvironment
 from guadal_cli.fleet.base import Measurement
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import Map, load_map
-from support import LAKE
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,9 @@ def make(graph, seed=0, **params):
 
 
 def sample(env, graph, vehicle, node, t):
-    return Measurement(vehicle, int(node), env.sense(vehicle, node), float(graph.lat[node]), float(graph.lon[node]), float(t))
+    return Measurement(
+        vehicle, int(node), env.sense(vehicle, node), float(graph.lat[node]), float(graph.lon[node]), float(t)
+    )
 
 
 def centroid(env, graph):
@@ -32,8 +34,12 @@ def centroid(env, graph):
 
 
 def test_mass_is_conserved_without_a_sink_while_the_slick_spreads_and_drifts(lake):
-    env = make(lake, sources=[{"row": 10, "col": 12, "mass": 1000.0, "radius_m": 5}], diffusivity=0.2,
-               drift={"current": [0.02, 0.01]})
+    env = make(
+        lake,
+        sources=[{"row": 10, "col": 12, "mass": 1000.0, "radius_m": 5}],
+        diffusivity=0.2,
+        drift={"current": [0.02, 0.01]},
+    )
     start_peak, start_centre = env.mass.max(), centroid(env, lake)
     for t in np.arange(37.0, 4000.0, 37.0):  # uneven hops, like a mission's
         env.advance(float(t))
@@ -48,9 +54,15 @@ def test_land_is_a_no_flux_boundary_mass_stays_in_its_own_water_body():
     mask = np.zeros((7, 12), bool)
     mask[1:6, 1:5] = True  # west pond
     mask[1:6, 6:11] = True  # east pond, one land column between them
-    graph = NavGraph(Map(mask=mask, cell_size_m=5.0, reference={"row": 3, "col": 5, "lat": 37.0, "lon": -6.0}))
-    env = make(graph, sources=[{"row": 3, "col": 4, "mass": 500.0, "radius_m": 0}], diffusivity=1.0,
-               drift={"current": [0.5, 0.0]})  # pushed hard towards the other pond
+    graph = NavGraph(
+        Map(mask=mask, cell_size_m=5.0, reference={"row": 3, "col": 5, "lat": 37.0, "lon": -6.0})
+    )
+    env = make(
+        graph,
+        sources=[{"row": 3, "col": 4, "mass": 500.0, "radius_m": 0}],
+        diffusivity=1.0,
+        drift={"current": [0.5, 0.0]},
+    )  # pushed hard towards the other pond
     env.advance(3000.0)
     west = graph.cols < 5
     assert env.mass[west].sum() == pytest.approx(500.0, rel=1e-9)
@@ -60,7 +72,11 @@ def test_land_is_a_no_flux_boundary_mass_stays_in_its_own_water_body():
 
 
 def test_decay_and_continuous_release_are_the_only_changes_of_mass(lake):
-    env = make(lake, sources=[{"node": 40, "mass": 300.0, "rate": 0.5, "start_s": 0, "duration_s": 200}], decay_rate=0.0)
+    env = make(
+        lake,
+        sources=[{"node": 40, "mass": 300.0, "rate": 0.5, "start_s": 0, "duration_s": 200}],
+        decay_rate=0.0,
+    )
     env.advance(1000.0)
     assert env.mass.sum() == pytest.approx(300.0 + 0.5 * 200, rel=1e-9)
     decaying = make(lake, sources=[{"node": 40, "mass": 300.0}], decay_rate=1e-3)
@@ -91,7 +107,12 @@ def test_a_sample_overwrites_the_observed_map_within_the_view_radius_and_nowhere
 
 def test_a_leg_folded_in_late_is_judged_against_the_field_at_each_sample_time(lake):
     """Target mode: samples of a whole leg reach update() together, after the field moved on."""
-    env = make(lake, sources=[{"row": 10, "col": 12, "mass": 2000.0}], diffusivity=0.1, drift={"current": [0.05, 0.0]})
+    env = make(
+        lake,
+        sources=[{"row": 10, "col": 12, "mass": 2000.0}],
+        diffusivity=0.1,
+        drift={"current": [0.05, 0.0]},
+    )
     node = lake.node_at(10, 15)
     env.advance(100.0)
     early = sample(env, lake, 0, node, 100.0)
@@ -104,7 +125,9 @@ def test_a_leg_folded_in_late_is_judged_against_the_field_at_each_sample_time(la
 
 
 def test_metrics_iou_coverage_and_error(lake):
-    env = make(lake, sources=[{"row": 10, "col": 12, "mass": 2000.0, "radius_m": 8}], diffusivity=0.05, threshold=0.5)
+    env = make(
+        lake, sources=[{"row": 10, "col": 12, "mass": 2000.0, "radius_m": 8}], diffusivity=0.05, threshold=0.5
+    )
     env.advance(200.0)
     m = env.metrics()
     assert m["iou"] == 0 and m["detection_coverage"] == 0 and m["observed_fraction"] == 0
@@ -118,8 +141,14 @@ def test_metrics_iou_coverage_and_error(lake):
 
 
 def test_leads_mark_unobserved_or_stale_water_on_and_beside_the_slick(lake):
-    env = make(lake, sources=[{"row": 10, "col": 12, "mass": 2000.0}], diffusivity=0.05, threshold=0.5,
-               view_radius_m=5.0, stale_after_s=100.0)
+    env = make(
+        lake,
+        sources=[{"row": 10, "col": 12, "mass": 2000.0}],
+        diffusivity=0.05,
+        threshold=0.5,
+        view_radius_m=5.0,
+        stale_after_s=100.0,
+    )
     env.advance(10.0)
     env.update([sample(env, lake, 0, lake.node_at(10, 12), 10.0)])
     fields = env.observation_fields()

@@ -4,13 +4,13 @@ import math
 
 import numpy as np
 import pytest
+from support import LAKE
 
 from guadal_cli.envs.trash import TrashConfig, TrashEnvironment
 from guadal_cli.envs.world import CellLocator
 from guadal_cli.fleet.base import Measurement
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import load_map
-from support import LAKE
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,14 @@ def test_detection_pickup_and_capacity_rules_hold_over_a_drifting_mission(lake):
     """New detections lie within the radius of a sample of that hop; pick-ups happen in the
     sampled cell, once per item, within capacity; the sensor reads what is picked."""
     radius, capacity = 7.5, 12
-    env = make(lake, items=150, vision_radius_m=radius, capacity=capacity, drift={"current": [0.03, 0.01]}, jitter=0.05)
+    env = make(
+        lake,
+        items=150,
+        vision_radius_m=radius,
+        capacity=capacity,
+        drift={"current": [0.03, 0.01]},
+        jitter=0.05,
+    )
     locator = CellLocator(lake)
     first_picker = np.full(150, -1)
     for k, positions in enumerate(random_walks(lake, steps=120, seed=2), start=1):
@@ -112,7 +119,9 @@ def test_drift_moves_items_with_mission_time_and_keeps_them_on_water(lake):
     assert (locator.nodes(env.items_xy) >= 0).all()
     env.advance(5000.0)  # long enough to push every item onto the north-east shore
     assert (locator.nodes(env.items_xy) >= 0).all()
-    assert (env.items_xy[:, 0] >= start[:, 0] - 1e-9).all() and (env.items_xy[:, 1] >= start[:, 1] - 1e-9).all()
+    assert (env.items_xy[:, 0] >= start[:, 0] - 1e-9).all() and (
+        env.items_xy[:, 1] >= start[:, 1] - 1e-9
+    ).all()
     assert env.items_xy[:, 1].mean() > start[:, 1].mean() + 10
 
 
@@ -125,7 +134,14 @@ def test_a_still_world_does_not_move(lake):
 
 def test_belief_forgets_items_that_drifted_out_of_sight(lake):
     node = lake.node_at(12, 12)
-    env = make(lake, items=1, spots=[{"node": node}], spot_radius_m=0.01, vision_radius_m=6.0, drift={"current": [0.1, 0.0]})
+    env = make(
+        lake,
+        items=1,
+        spots=[{"node": node}],
+        spot_radius_m=0.01,
+        vision_radius_m=6.0,
+        drift={"current": [0.1, 0.0]},
+    )
     far = lake.node_at(12, 20)
     env.update([sample(lake, 0, far, 0.0)])  # vehicle 0 far away: sees nothing
     env.update([sample(lake, 1, lake.node_at(12, 11), 0.0)])  # vehicle 1 next to it
@@ -143,7 +159,9 @@ def test_metrics_count_collection_distance_and_milestones(lake):
     per_node = env.ground_truth[nodes]
     assert per_node.sum() == 4
     m = env.metrics()
-    assert m["fraction_collected"] == 0 and math.isnan(m["distance_per_item"]) and math.isnan(m["time_to_50pct"])
+    assert (
+        m["fraction_collected"] == 0 and math.isnan(m["distance_per_item"]) and math.isnan(m["time_to_50pct"])
+    )
     env.update([sample(lake, 0, lake.node_at(10, 11), 0.0)])
     env.update([sample(lake, 0, nodes[0], 10.0)])
     m = env.metrics()

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-
 from fleet_support import Inbox, wait_for
+
 from guadal_cli.errors import GuadalError
 from guadal_cli.fleet.broker import mosquitto_binary, port_accepts, start_broker
 
@@ -82,14 +82,25 @@ def test_keepalive_expiry_publishes_the_will(broker, clients):
 def test_wildcards_match_exactly_the_topics_they_should(broker, clients):
     sub, pub = clients(), clients()
     sub.subscribe("g/vehicle/+/ack", "g/planner/#")
-    for name in ["g/vehicle/1/ack", "g/vehicle/2/ack", "g/vehicle/1/telemetry", "g/vehicle/1/ack/x",
-                 "g/planner/status", "g/planner", "h/vehicle/1/ack", "g/marker"]:
+    for name in [
+        "g/vehicle/1/ack",
+        "g/vehicle/2/ack",
+        "g/vehicle/1/telemetry",
+        "g/vehicle/1/ack/x",
+        "g/planner/status",
+        "g/planner",
+        "h/vehicle/1/ack",
+        "g/marker",
+    ]:
         pub.client.publish(name, b"x", qos=1).wait_for_publish(10)
     sub.subscribe("g/marker")
     pub.client.publish("g/marker", b"end", qos=1).wait_for_publish(10)
     sub.wait(lambda: sub.on("g/marker"), 10, "the marker was not delivered")
     assert sorted(m.topic for m in sub.messages if m.topic != "g/marker") == [
-        "g/planner", "g/planner/status", "g/vehicle/1/ack", "g/vehicle/2/ack"
+        "g/planner",
+        "g/planner/status",
+        "g/vehicle/1/ack",
+        "g/vehicle/2/ack",
     ]
 
 

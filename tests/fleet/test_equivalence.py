@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from fleet_support import processes_marked
+from support import ROOT
+
 from guadal_cli.mission import prepare
 from guadal_cli.runner import MissionRunner
-from support import ROOT
 
 
 def plan_rows(run: Path) -> list[tuple[str, str, str]]:
@@ -31,12 +31,16 @@ def distances(run: Path) -> list[list[float]]:
     return [[round(float(r[f"distance_v{i}"]), 6) for i in range(3)] for r in rows]
 
 
-@pytest.mark.parametrize("name, broker", [("lake_greedy", "mosquitto"), ("lake_expected_improvement", "embedded")])
+@pytest.mark.parametrize(
+    "name, broker", [("lake_greedy", "mosquitto"), ("lake_expected_improvement", "embedded")]
+)
 def test_sim_and_sitl_send_the_same_targets(name, broker, tmp_path, monkeypatch):
     """Mosquitto for one, the embedded broker (a machine without Mosquitto) for the other."""
     sim = yaml.safe_load((ROOT / "missions" / f"{name}.yaml").read_text())
     sitl = yaml.safe_load((ROOT / "missions" / f"{name}_sitl.yaml").read_text())
-    assert {k: v for k, v in sim.items() if k != "backend"} == {k: v for k, v in sitl.items() if k != "backend"}
+    assert {k: v for k, v in sim.items() if k != "backend"} == {
+        k: v for k, v in sitl.items() if k != "backend"
+    }
     runs = {}
     mark = uuid.uuid4().hex
     monkeypatch.setenv("GUADAL_TEST_MARK", mark)  # inherited by every process the run starts

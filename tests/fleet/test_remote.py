@@ -10,8 +10,9 @@ import signal
 import threading
 
 import pytest
-
 from fleet_support import Inbox, wait_for
+from support import LAKE
+
 from guadal_cli.errors import GuadalError
 from guadal_cli.fleet import messages as msg
 from guadal_cli.fleet.broker import start_broker
@@ -20,7 +21,6 @@ from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import load_map
 from guadal_cli.mission import auto_positions
 from guadal_cli.stack import Stack
-from support import LAKE
 
 N = 3
 
@@ -40,8 +40,15 @@ def stack(graph, tmp_path_factory):
     survey = tmp_path_factory.mktemp("probe") / "survey.csv"
     survey.write_text("node,value\n" + "".join(f"{n},{probe_value(n)}\n" for n in range(graph.n_nodes)))
     homes = [(float(graph.lat[n]), float(graph.lon[n])) for n in auto_positions(graph, N)]
-    s = Stack.launch(map_path=LAKE, vehicles=N, homes=homes, speedup=100, broker_kind="mosquitto", timeout=60,
-                     bridge_args=["--sensor", f"replay:{survey}"])
+    s = Stack.launch(
+        map_path=LAKE,
+        vehicles=N,
+        homes=homes,
+        speedup=100,
+        broker_kind="mosquitto",
+        timeout=60,
+        bridge_args=["--sensor", f"replay:{survey}"],
+    )
     yield s
     s.down()
 
@@ -75,7 +82,9 @@ def test_hops_move_the_boats_and_count_graph_metres(graph, stack):
             assert fleet.distances[v] == pytest.approx(graph.edge_length(start[v], target))
         assert fleet.mission_time > 0  # the boats' own clock advanced
         samples = fleet.take_measurement()
-        assert [(m.vehicle, m.node, m.value) for m in samples] == [(v, n, float(n)) for v, n in fleet.positions.items()]
+        assert [(m.vehicle, m.node, m.value) for m in samples] == [
+            (v, n, float(n)) for v, n in fleet.positions.items()
+        ]
         track: list[dict] = []
         wait_for(lambda: track.extend(fleet.track_rows()) or track, 10, "no GPS fix was recorded")
         assert set(track[0]) == {"vehicle", "lat", "lon", "time_s"} and track[0]["time_s"] >= 0
@@ -87,7 +96,7 @@ def test_hops_move_the_boats_and_count_graph_metres(graph, stack):
 
 def test_reset_sails_to_the_start_nodes_without_counting_it(graph, stack):
     homes = auto_positions(graph, N)
-    elsewhere = [n for n in range(graph.n_nodes) if 12 <= graph.distance(homes[0], n) <= 20][:: 7][:N]
+    elsewhere = [n for n in range(graph.n_nodes) if 12 <= graph.distance(homes[0], n) <= 20][::7][:N]
     fleet = make_fleet(graph, stack.broker_port)
     try:
         fleet.reset(elsewhere)
@@ -111,8 +120,11 @@ def test_a_silent_vehicle_makes_the_hop_time_out_with_a_sentence(graph, stack):
         target = next(n for n in graph.neighbors(start[1]) if n not in start)
         bridge.signal(signal.SIGSTOP)  # frozen: connected, but answers nothing
         try:
-            with pytest.raises(GuadalError, match=rf"vehicle 1 did not reach node {target} within 1 s "
-                                                  r"\(goto seq \d+ never acknowledged, last fix [\d.]+ m from it\)"):
+            with pytest.raises(
+                GuadalError,
+                match=rf"vehicle 1 did not reach node {target} within 1 s "
+                r"\(goto seq \d+ never acknowledged, last fix [\d.]+ m from it\)",
+            ):
                 fleet.move({1: target})
         finally:
             bridge.signal(signal.SIGCONT)
@@ -128,8 +140,10 @@ def test_vehicle_measurements_come_from_the_boats_probes(graph, stack):
         target = next(n for n in graph.neighbors(start[0]) if n not in start)
         drive(fleet, {0: target})
         samples = fleet.take_measurement([0, 2])
-        assert [(m.vehicle, m.node, m.value) for m in samples] == [(0, target, probe_value(target)),
-                                                                   (2, start[2], probe_value(start[2]))]
+        assert [(m.vehicle, m.node, m.value) for m in samples] == [
+            (0, target, probe_value(target)),
+            (2, start[2], probe_value(start[2])),
+        ]
         for m in samples:  # where the boat really was: within the arrival radius of the node
             x, y = graph.map.projection.to_xy(m.lat, m.lon)
             assert abs(float(x) - graph.x[m.node]) < 3 and abs(float(y) - graph.y[m.node]) < 3
@@ -144,7 +158,9 @@ def test_a_vehicle_in_failsafe_is_done_and_the_others_go_on(graph, stack):
     raw = Inbox(stack.broker_port)
     try:
         fleet.reset(start)
-        raw.client.publish(msg.topic("guadal", 1, "status"), msg.encode("status", state="failsafe"), qos=1).wait_for_publish(10)
+        raw.client.publish(
+            msg.topic("guadal", 1, "status"), msg.encode("status", state="failsafe"), qos=1
+        ).wait_for_publish(10)
         wait_for(lambda: fleet.vehicles[1].problem, 10, "the failsafe status was not taken into account")
         hops = {v: next(n for n in graph.neighbors(start[v]) if n not in start) for v in (0, 1)}
         reached, done = fleet.move(hops)
@@ -167,18 +183,27 @@ def test_bad_payloads_are_counted_and_the_mission_goes_on(graph, stack):
             (ack, b"{not json"),
             (ack, b"x" * 20_000),  # oversized
             (ack, json.dumps({"v": 1, "type": "teleport", "seq": 1}).encode()),  # unknown type
-            (ack, json.dumps({"v": 1, "type": "ack", "seq": "7", "status": "reached"}).encode()),  # wrong field type
+            (
+                ack,
+                json.dumps({"v": 1, "type": "ack", "seq": "7", "status": "reached"}).encode(),
+            ),  # wrong field type
             (msg.topic("guadal", 7, "ack"), msg.encode("ack", seq=1, status="reached")),  # unknown vehicle
             (ack, msg.encode("ack", seq=fleet.vehicles[0].goto.seq - 1, status="reached")),  # stale seq
-            (ack, msg.encode("ack", seq=fleet.vehicles[0].goto.seq, status="reached")),  # duplicate of the reset's
+            (
+                ack,
+                msg.encode("ack", seq=fleet.vehicles[0].goto.seq, status="reached"),
+            ),  # duplicate of the reset's
         ]
         before = fleet.dropped.copy()
         for name, payload in bad:
             raw.client.publish(name, payload, qos=1).wait_for_publish(10)
         expected = {"malformed": 4, "unknown_vehicle": 1, "stale": 1, "duplicate": 1}
         # (answers to the previous test's last commands may add stale ones: count from here)
-        wait_for(lambda: all(fleet.dropped[k] - before[k] >= n for k, n in expected.items()), 10,
-                 "the bad messages were not all counted")
+        wait_for(
+            lambda: all(fleet.dropped[k] - before[k] >= n for k, n in expected.items()),
+            10,
+            "the bad messages were not all counted",
+        )
         assert set(fleet.dropped) <= set(expected)  # no handler error, nothing else
         target = next(n for n in graph.neighbors(start[0]) if n not in start)
         done = drive(fleet, {0: target})
@@ -228,7 +253,9 @@ def test_broker_restart_mid_mission_loses_no_command(graph, stack):
 def test_unreachable_broker_is_one_sentence(graph):
     fleet = make_fleet(graph, 1, connect_timeout=1.0)  # nothing listens on port 1
     try:
-        with pytest.raises(GuadalError, match=r"cannot reach the MQTT broker at mqtt://127\.0\.0\.1:1 within 1 s"):
+        with pytest.raises(
+            GuadalError, match=r"cannot reach the MQTT broker at mqtt://127\.0\.0\.1:1 within 1 s"
+        ):
             fleet.reset(auto_positions(graph, N))
     finally:
         fleet.close()
@@ -260,26 +287,32 @@ def test_a_vehicle_whose_bridge_stops_is_done_with_a_reason(graph, stack):
         reached, done = fleet.move({0: target, 2: other})
         assert done[2] and reached[2] and not done[0]
         assert fleet.positions[2] == start[2] and fleet.positions[0] == target
-        assert fleet.problems == ["vehicle 2 went offline (its bridge stopped or lost the broker); it takes no further part in the mission."]
+        assert fleet.problems == [
+            "vehicle 2 went offline (its bridge stopped or lost the broker); it takes no further part in the mission."
+        ]
     finally:
         fleet.close()
 
 
 def test_real_mission_reads_its_password_from_the_environment(monkeypatch):
-    from guadal_cli.mission import prepare
     from support import ROOT
+
+    from guadal_cli.mission import prepare
 
     monkeypatch.delenv("GUADAL_MQTT_PASSWORD", raising=False)
     prep = prepare(ROOT / "missions" / "lake_greedy_real.yaml")
     assert prep.backend_config.measurements == "vehicle" and prep.backend_config.tls
     backend = prep.backend_cls(prep.backend_config)
-    with pytest.raises(GuadalError, match="backend.password_env: environment variable 'GUADAL_MQTT_PASSWORD' is not set"):
+    with pytest.raises(
+        GuadalError, match="backend.password_env: environment variable 'GUADAL_MQTT_PASSWORD' is not set"
+    ):
         backend.make_fleet(graph=prep.graph, fleet_config=prep.mission.fleet, sensor=None, mission=prep)
 
 
 def test_a_misspelt_backend_setting_is_named(write_mission):
-    from guadal_cli.mission import prepare
     from support import base_mission
+
+    from guadal_cli.mission import prepare
 
     path = write_mission(base_mission(backend={"level": "sitl", "launch": True, "speedupp": 5}))
     with pytest.raises(GuadalError, match=r"backend\.speedupp: unknown key \(allowed: .*speedup"):

@@ -11,12 +11,12 @@ import uuid
 from pathlib import Path
 
 import yaml
+from fleet_support import Inbox, processes_marked, wait_for
+from support import LAKE, ROOT, run_cli
 from typer.testing import CliRunner
 
-from fleet_support import Inbox, processes_marked, wait_for
 from guadal_cli.app import app
 from guadal_cli.fleet import messages as msg
-from support import LAKE, ROOT, run_cli
 
 
 def cli(*args):
@@ -34,7 +34,9 @@ def alive(pid: int) -> bool:
 
 def test_stack_up_then_down_leaves_no_process(tmp_path):
     state = tmp_path / "stack"
-    up = run_cli("stack", "up", "--map", LAKE, "--vehicles", "2", "--speedup", "20", "--state-dir", state, "--json")
+    up = run_cli(
+        "stack", "up", "--map", LAKE, "--vehicles", "2", "--speedup", "20", "--state-dir", state, "--json"
+    )
     assert up.returncode == 0, up.stderr
     info = json.loads(up.stdout)
     pids = info["pids"]
@@ -44,12 +46,16 @@ def test_stack_up_then_down_leaves_no_process(tmp_path):
         # up returned only once every bridge was online: the retained statuses are there already
         inbox = Inbox(info["broker"]["port"])
         inbox.subscribe("guadal/vehicle/+/status")
-        inbox.wait(lambda: len({m.topic for m in inbox.messages}) == 2, 5, "the retained statuses are missing")
+        inbox.wait(
+            lambda: len({m.topic for m in inbox.messages}) == 2, 5, "the retained statuses are missing"
+        )
         assert {msg.decode(m.payload)["state"] for m in inbox.messages} <= {"online"}
         inbox.close()
 
         again = cli("stack", "up", "--map", LAKE, "--vehicles", "2", "--state-dir", state)
-        assert again.exit_code == 2 and "already up" in again.output and again.exception.__class__ is SystemExit
+        assert (
+            again.exit_code == 2 and "already up" in again.output and again.exception.__class__ is SystemExit
+        )
 
         status = cli("stack", "status", "--state-dir", state, "--json")
         assert [row["state"] for row in json.loads(status.stdout)] == ["alive"] * 4
@@ -78,13 +84,22 @@ def test_a_killed_run_takes_its_launched_stack_down(tmp_path):
     path.write_text(yaml.safe_dump(mission))
     token = uuid.uuid4().hex  # inherited by every process the run starts
     mark = f"GUADAL_TEST_MARK={token}"
-    run = subprocess.Popen([sys.executable, "-m", "guadal_cli", "run", str(path), "-o", str(tmp_path / "run"), "-q"],
-                           env={**os.environ, "GUADAL_TEST_MARK": token},
-                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    run = subprocess.Popen(
+        [sys.executable, "-m", "guadal_cli", "run", str(path), "-o", str(tmp_path / "run"), "-q"],
+        env={**os.environ, "GUADAL_TEST_MARK": token},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         # mid-mission: steps are being recorded
-        wait_for(lambda: (tmp_path / "run" / "metrics.csv").is_file()
-                 and len((tmp_path / "run" / "metrics.csv").read_text().splitlines()) > 2, 60, "the mission did not start")
+        wait_for(
+            lambda: (
+                (tmp_path / "run" / "metrics.csv").is_file()
+                and len((tmp_path / "run" / "metrics.csv").read_text().splitlines()) > 2
+            ),
+            60,
+            "the mission did not start",
+        )
         assert len(processes_marked(mark)) == 4  # the run, broker, emulator, bridge
     finally:
         run.send_signal(signal.SIGKILL)

@@ -57,7 +57,9 @@ L_SHAPE = union(box(L_WEST, L_WEST + L_ARM, L_SOUTH, L_NORTH), box(L_WEST, L_EAS
 L_AREA = 2 * 100 * L_ARM - L_ARM**2
 
 
-def draw_image(path: Path, shape, half: float = 100.0, pixel: float = 0.5, water=(255, 255, 255), land=(0, 0, 0)):
+def draw_image(
+    path: Path, shape, half: float = 100.0, pixel: float = 0.5, water=(255, 255, 255), land=(0, 0, 0)
+):
     """A north-up PNG of ``shape`` over a square of side 2*half metres; returns its bounds."""
     n = int(round(2 * half / pixel))
     centres = (np.arange(n) + 0.5) * pixel - half
@@ -68,8 +70,17 @@ def draw_image(path: Path, shape, half: float = 100.0, pixel: float = 0.5, water
     return bounds_of(half, half)
 
 
-def draw_grid(path: Path, shape, dx: float, dy: float, half_w: float, half_h: float,
-              water_value: int = 1, delimiter: str = ",", south_first: bool = False):
+def draw_grid(
+    path: Path,
+    shape,
+    dx: float,
+    dy: float,
+    half_w: float,
+    half_h: float,
+    water_value: int = 1,
+    delimiter: str = ",",
+    south_first: bool = False,
+):
     """A grid mask of dx x dy cells (value = water_value where the cell centre is in the shape).
 
     Returns (centre_lat, centre_lon, corner_lat, corner_lon) of the cells as written.
@@ -91,7 +102,9 @@ def draw_grid(path: Path, shape, dx: float, dy: float, half_w: float, half_h: fl
 
 
 def write_latlon_grid(path: Path, lat: np.ndarray, lon: np.ndarray) -> None:
-    path.write_text("\n".join(";".join(f'"{a:.9f},{b:.9f}"' for a, b in zip(r1, r2)) for r1, r2 in zip(lat, lon)) + "\n")
+    path.write_text(
+        "\n".join(";".join(f'"{a:.9f},{b:.9f}"' for a, b in zip(r1, r2)) for r1, r2 in zip(lat, lon)) + "\n"
+    )
 
 
 def circle_ring(radius, cx=0.0, cy=0.0, n=256):
@@ -106,7 +119,14 @@ def polygon_area(radius, n=256):
 
 
 def write_geojson(path: Path, geometry: dict) -> None:
-    path.write_text(json.dumps({"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {}, "geometry": geometry}]}))
+    path.write_text(
+        json.dumps(
+            {
+                "type": "FeatureCollection",
+                "features": [{"type": "Feature", "properties": {}, "geometry": geometry}],
+            }
+        )
+    )
 
 
 def metres(map_, lat, lon):

@@ -16,12 +16,24 @@ EXAMPLE_BOUNDS = "37.4200,37.4164,-5.9780,-5.9830"
 def test_readme_path_from_satellite_picture_to_a_mission_run(tmp_path):
     out = tmp_path / "example_satellite.json"
     # the README's command, with --json for this test to read
-    made = run_cli("discretize", EXAMPLE, "--bounds", EXAMPLE_BOUNDS, "--cell-size", "10", "--largest-body",
-                   "--output", out, "--json")
+    made = run_cli(
+        "discretize",
+        EXAMPLE,
+        "--bounds",
+        EXAMPLE_BOUNDS,
+        "--cell-size",
+        "10",
+        "--largest-body",
+        "--output",
+        out,
+        "--json",
+    )
     assert made.returncode == 0, made.stderr
     summary = json.loads(made.stdout)
     assert summary["bodies"] == 1 and summary["water_nodes"] > 300
-    assert abs(summary["area_m2"] - summary["source_water_m2"]) < 0.05 * summary["source_water_m2"] + 1000  # pond dropped
+    assert (
+        abs(summary["area_m2"] - summary["source_water_m2"]) < 0.05 * summary["source_water_m2"] + 1000
+    )  # pond dropped
     preview = Image.open(tmp_path / "example_satellite.png")
     assert preview.size[0] > 400 and preview.size[1] > 400
 
@@ -48,10 +60,22 @@ def test_shipped_example_mission_validates():
 
 
 def test_csv_with_centre_grid_defaults_to_its_own_cell_size(tmp_path):
-    clat, clon, *_ = draw_grid(tmp_path / "lake.csv", disc(30.0), dx=4.0, dy=4.0, half_w=40, half_h=40, water_value=0)
+    clat, clon, *_ = draw_grid(
+        tmp_path / "lake.csv", disc(30.0), dx=4.0, dy=4.0, half_w=40, half_h=40, water_value=0
+    )
     write_latlon_grid(tmp_path / "grid.txt", clat, clon)
-    result = run_cli("discretize", tmp_path / "lake.csv", "--latlon-grid", tmp_path / "grid.txt", "--water-value", "0",
-                     "--output", tmp_path / "lake.json", "--no-preview", "--json")
+    result = run_cli(
+        "discretize",
+        tmp_path / "lake.csv",
+        "--latlon-grid",
+        tmp_path / "grid.txt",
+        "--water-value",
+        "0",
+        "--output",
+        tmp_path / "lake.json",
+        "--no-preview",
+        "--json",
+    )
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["cell_size_m"] == pytest.approx(4.0, rel=1e-4)
@@ -74,18 +98,37 @@ def bad_inputs(tmp_path):
     draw_image(shifted / "lake.png", disc(30.0), half=50.0, pixel=1.0)
     (shifted / "lake.pgw").write_text("0.0000113\n0\n0\n-0.000009\n-5.9811\n37.4185\n")
     return {
-        "unreadable file": ([tmp_path / "broken.png", "--bounds", bounds, "--cell-size", "5"], "cannot read image 'broken.png'"),
+        "unreadable file": (
+            [tmp_path / "broken.png", "--bounds", bounds, "--cell-size", "5"],
+            "cannot read image 'broken.png'",
+        ),
         "missing file": ([tmp_path / "nope.png", "--bounds", bounds, "--cell-size", "5"], "no such file"),
         "no water": ([black, "--bounds", bounds, "--cell-size", "5"], "no water found in 'black.png'"),
-        "contradicting bounds": ([lake, "--bounds", "37.41,37.42,-5.97,-5.98", "--cell-size", "5"], "bounds contradict each other"),
+        "contradicting bounds": (
+            [lake, "--bounds", "37.41,37.42,-5.97,-5.98", "--cell-size", "5"],
+            "bounds contradict each other",
+        ),
         "cell larger than lake": ([lake, "--bounds", bounds, "--cell-size", "80"], "larger than the lake"),
-        "grid shape": ([mask, "--latlon-grid", grid, "--cell-size", "5"], "is 12x11 but the mask 'mask.csv' is 12x12"),
+        "grid shape": (
+            [mask, "--latlon-grid", grid, "--cell-size", "5"],
+            "is 12x11 but the mask 'mask.csv' is 12x12",
+        ),
         "world file vs bounds": ([shifted / "lake.png", "--bounds", bounds, "--cell-size", "5"], "disagree"),
     }
 
 
-@pytest.mark.parametrize("case", ["unreadable file", "missing file", "no water", "contradicting bounds",
-                                  "cell larger than lake", "grid shape", "world file vs bounds"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "unreadable file",
+        "missing file",
+        "no water",
+        "contradicting bounds",
+        "cell larger than lake",
+        "grid shape",
+        "world file vs bounds",
+    ],
+)
 def test_bad_input_one_sentence_exit_2_nothing_written(tmp_path, case):
     args, words = bad_inputs(tmp_path)[case]
     out = tmp_path / "out" / "map.json"

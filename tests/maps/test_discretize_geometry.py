@@ -5,7 +5,20 @@ import math
 import numpy as np
 import pytest
 from maps_support import (
-    L_AREA, L_ARM, L_EAST, L_NORTH, L_SHAPE, L_SOUTH, L_WEST, bounds_text, disc, draw_image, metres, minus, union, box,
+    L_AREA,
+    L_ARM,
+    L_EAST,
+    L_NORTH,
+    L_SHAPE,
+    L_SOUTH,
+    L_WEST,
+    bounds_text,
+    box,
+    disc,
+    draw_image,
+    metres,
+    minus,
+    union,
 )
 
 from guadal_cli.errors import GuadalError
@@ -67,7 +80,12 @@ def _latlon(x, y):
 def test_known_points_land_on_the_cell_that_holds_them(tmp_path):
     cell = 5.0
     m = make(tmp_path, L_SHAPE, cell)
-    for x, y in [(L_WEST + 3, L_NORTH - 3), (L_EAST - 2, L_SOUTH + 2), (L_WEST + 15, L_SOUTH + 15), (0.0, -40.0)]:
+    for x, y in [
+        (L_WEST + 3, L_NORTH - 3),
+        (L_EAST - 2, L_SOUTH + 2),
+        (L_WEST + 15, L_SOUTH + 15),
+        (0.0, -40.0),
+    ]:
         lat, lon = _latlon(x, y)
         row, col = m.rowcol_of(lat, lon)
         cx, cy = metres(m, m.lat[row, col], m.lon[row, col])

@@ -5,8 +5,17 @@ import math
 import numpy as np
 import pytest
 from maps_support import (
-    L_AREA, L_EAST, L_NORTH, L_SHAPE, L_SOUTH, L_WEST, bounds_text, circle_ring, disc, draw_grid, draw_image, latlon,
-    metres, polygon_area, write_geojson, write_latlon_grid,
+    L_SHAPE,
+    bounds_text,
+    circle_ring,
+    disc,
+    draw_grid,
+    draw_image,
+    latlon,
+    metres,
+    polygon_area,
+    write_geojson,
+    write_latlon_grid,
 )
 from PIL import Image
 
@@ -27,8 +36,9 @@ def water_extent(m):
 def test_inverted_csv_with_coordinate_grid_of_non_square_cells(tmp_path, role, south_first):
     # 5 m wide x 2.5 m tall source cells; 0 = water (the inverted files)
     mask_path, grid_path = tmp_path / "lake.csv", tmp_path / "lake_latlon.txt"
-    clat, clon, klat, klon, inside = draw_grid(mask_path, L_SHAPE, dx=5.0, dy=2.5, half_w=60, half_h=60,
-                                               water_value=0, south_first=south_first)
+    clat, clon, klat, klon, inside = draw_grid(
+        mask_path, L_SHAPE, dx=5.0, dy=2.5, half_w=60, half_h=60, water_value=0, south_first=south_first
+    )
     write_latlon_grid(grid_path, *((clat, clon) if role == "centres" else (klat, klon)))
     source = open_source(mask_path, water_value=0, latlon_grid=grid_path)
     assert source.cell_width_m == pytest.approx(5.0, rel=1e-4)  # coordinates are written to 1e-9 degrees
@@ -42,8 +52,12 @@ def test_inverted_csv_with_coordinate_grid_of_non_square_cells(tmp_path, role, s
     m = discretize(source, DiscretizeOptions(cell_size_m=cell)).map
     # source cells are water by their centre, so the lake's true edges are those cells' edges
     rows, cols = np.nonzero(inside)
-    edges = {"west": -60 + cols.min() * 5.0, "east": -60 + (cols.max() + 1) * 5.0,
-             "north": 60 - rows.min() * 2.5, "south": 60 - (rows.max() + 1) * 2.5}
+    edges = {
+        "west": -60 + cols.min() * 5.0,
+        "east": -60 + (cols.max() + 1) * 5.0,
+        "north": 60 - rows.min() * 2.5,
+        "south": 60 - (rows.max() + 1) * 2.5,
+    }
     assert abs(m.summary()["area_m2"] - inside.sum() * 12.5) < 0.5 * cell * 400
     west, east, south, north = water_extent(m)
     # the outermost water cell centres lie within half a cell of half a cell inside each edge
@@ -59,7 +73,9 @@ def test_water_up_to_the_coordinate_grid_edge_stops_there(tmp_path):
     write_latlon_grid(grid_path, klat, klon)
     m = discretize(open_source(mask_path, latlon_grid=grid_path), DiscretizeOptions(cell_size_m=2.0)).map
     assert inside.all()
-    assert m.summary()["area_m2"] == pytest.approx(60 * 60, abs=1.0)  # the 60 x 60 m grid, not the cells beyond it
+    assert m.summary()["area_m2"] == pytest.approx(
+        60 * 60, abs=1.0
+    )  # the 60 x 60 m grid, not the cells beyond it
 
 
 def test_whitespace_delimited_mask_with_bounds(tmp_path):
@@ -76,7 +92,10 @@ def test_coordinate_grid_of_the_wrong_shape_is_refused(tmp_path):
     mask_path, grid_path = tmp_path / "lake.csv", tmp_path / "grid.txt"
     clat, clon, *_ = draw_grid(mask_path, disc(20.0), dx=5.0, dy=5.0, half_w=30, half_h=30)
     write_latlon_grid(grid_path, clat[:-2], clon[:-2])
-    with pytest.raises(GuadalError, match=r"is 10x12 but the mask 'lake.csv' is 12x12; it must be 12x12 \(cell centres\) or 13x13"):
+    with pytest.raises(
+        GuadalError,
+        match=r"is 10x12 but the mask 'lake.csv' is 12x12; it must be 12x12 \(cell centres\) or 13x13",
+    ):
         open_source(mask_path, latlon_grid=grid_path)
 
 
@@ -104,14 +123,20 @@ def world_file_for(path, bounds, pixels):
 def test_world_file_georeferences_like_bounds_and_must_agree_with_them(tmp_path):
     image = tmp_path / "lake.png"
     bounds = draw_image(image, L_SHAPE, half=100.0, pixel=0.5)
-    with_bounds = discretize(open_source(image, bounds=bounds_text(bounds)), DiscretizeOptions(cell_size_m=5.0)).map
+    with_bounds = discretize(
+        open_source(image, bounds=bounds_text(bounds)), DiscretizeOptions(cell_size_m=5.0)
+    ).map
     world_file_for(tmp_path / "lake.pgw", bounds, 400)
     with_world = discretize(open_source(image), DiscretizeOptions(cell_size_m=5.0)).map
     assert np.array_equal(with_world.mask, with_bounds.mask)
-    assert np.allclose(with_world.lat, with_bounds.lat, atol=1e-9) and np.allclose(with_world.lon, with_bounds.lon, atol=1e-9)
+    assert np.allclose(with_world.lat, with_bounds.lat, atol=1e-9) and np.allclose(
+        with_world.lon, with_bounds.lon, atol=1e-9
+    )
     assert open_source(image, bounds=bounds_text(bounds)).georef == "--bounds (agrees with lake.pgw)"
     shifted = (bounds[0] + 0.0002, bounds[1] + 0.0002, bounds[2], bounds[3])  # 22 m north
-    with pytest.raises(GuadalError, match="world file 'lake.pgw' and --bounds disagree: their north edges are 22.2 m apart"):
+    with pytest.raises(
+        GuadalError, match="world file 'lake.pgw' and --bounds disagree: their north edges are 22.2 m apart"
+    ):
         open_source(image, bounds=bounds_text(shifted))
 
 
@@ -123,12 +148,15 @@ def test_rotated_world_file_is_refused(tmp_path):
         open_source(image)
 
 
-@pytest.mark.parametrize("bounds, message", [
-    ("37.41,37.42,-5.97,-5.98", r"north \(37.41\) must be greater than south \(37.42\)"),
-    ("37.42,37.41,-5.98,-5.97", r"east \(-5.98\) must be greater than west \(-5.97\)"),
-    ("97.42,37.41,-5.97,-5.98", r"north must be a latitude in \[-90, 90\]"),
-    ("37.42,37.41,-5.97", "must be four numbers north,south,east,west"),
-])
+@pytest.mark.parametrize(
+    "bounds, message",
+    [
+        ("37.41,37.42,-5.97,-5.98", r"north \(37.41\) must be greater than south \(37.42\)"),
+        ("37.42,37.41,-5.98,-5.97", r"east \(-5.98\) must be greater than west \(-5.97\)"),
+        ("97.42,37.41,-5.97,-5.98", r"north must be a latitude in \[-90, 90\]"),
+        ("37.42,37.41,-5.97", "must be four numbers north,south,east,west"),
+    ],
+)
 def test_contradictory_bounds_are_refused(tmp_path, bounds, message):
     image = tmp_path / "lake.png"
     draw_image(image, disc(30.0))
@@ -146,7 +174,9 @@ def test_jpeg_and_tiff_masks_read_like_png(tmp_path, suffix, mode):
         Image.fromarray((np.asarray(grey) > 127).astype(np.uint16) * 65535).save(other)
     else:
         grey.convert(mode).save(other, quality=95) if suffix == ".jpg" else grey.convert(mode).save(other)
-    reference = discretize(open_source(png, bounds=bounds_text(bounds)), DiscretizeOptions(cell_size_m=8.0)).map
+    reference = discretize(
+        open_source(png, bounds=bounds_text(bounds)), DiscretizeOptions(cell_size_m=8.0)
+    ).map
     m = discretize(open_source(other, bounds=bounds_text(bounds)), DiscretizeOptions(cell_size_m=8.0)).map
     assert abs(m.water_nodes - reference.water_nodes) <= 2
 
@@ -166,12 +196,15 @@ def satellite(tmp_path, water=SATELLITE_WATER):
     return path, bounds
 
 
-@pytest.mark.parametrize("rule", [
-    WaterRule(),  # default for colour: index > 0.1
-    WaterRule(colour=(30, 90, 110), tolerance=20),
-    WaterRule.from_options(None, 40, "index>0.3", False),
-    WaterRule.from_options(None, 40, "red>=60", True),
-])
+@pytest.mark.parametrize(
+    "rule",
+    [
+        WaterRule(),  # default for colour: index > 0.1
+        WaterRule(colour=(30, 90, 110), tolerance=20),
+        WaterRule.from_options(None, 40, "index>0.3", False),
+        WaterRule.from_options(None, 40, "red>=60", True),
+    ],
+)
 def test_colour_rules_find_the_drawn_water(tmp_path, rule):
     path, bounds = satellite(tmp_path)
     source = open_source(path, bounds=bounds_text(bounds), rule=rule)
@@ -206,13 +239,19 @@ def test_transparent_pixels_are_never_water(tmp_path):
 
 def test_no_water_in_an_image_is_refused(tmp_path):
     path, bounds = satellite(tmp_path, water=GRASS)
-    with pytest.raises(GuadalError, match=r"no water found in 'photo.png': no pixel matches the rule index>0.1"):
+    with pytest.raises(
+        GuadalError, match=r"no water found in 'photo.png': no pixel matches the rule index>0.1"
+    ):
         open_source(path, bounds=bounds_text(bounds))
 
 
-@pytest.mark.parametrize("text, message", [
-    ("blue=>3", "is not a rule"), ("cyan>3", "unknown channel 'cyan'"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("blue=>3", "is not a rule"),
+        ("cyan>3", "unknown channel 'cyan'"),
+    ],
+)
 def test_bad_threshold_rules(text, message):
     with pytest.raises(GuadalError, match=message):
         WaterRule.from_options(None, 40, text, False)
@@ -222,7 +261,9 @@ def test_bad_threshold_rules(text, message):
 @pytest.mark.parametrize("cell", [4.0, 10.0])
 def test_geojson_polygon_with_an_island(tmp_path, cell):
     path = tmp_path / "lake.geojson"
-    write_geojson(path, {"type": "Polygon", "coordinates": [circle_ring(60.0), circle_ring(15.0, cx=20.0)[::-1]]})
+    write_geojson(
+        path, {"type": "Polygon", "coordinates": [circle_ring(60.0), circle_ring(15.0, cx=20.0)[::-1]]}
+    )
     source = open_source(path)
     true_area = polygon_area(60.0) - polygon_area(15.0)
     assert source.water_area_m2 == pytest.approx(true_area, rel=1e-3)
@@ -231,18 +272,32 @@ def test_geojson_polygon_with_an_island(tmp_path, cell):
     x, y = metres(m, m.lat, m.lon)
     assert not m.mask[np.hypot(x - 20.0, y) < 15.0 - cell].any()  # the island is land
     west, east, south, north = water_extent(m)
-    for got, edge in [(west, -60 + cell / 2), (east, 60 - cell / 2), (south, -60 + cell / 2), (north, 60 - cell / 2)]:
+    for got, edge in [
+        (west, -60 + cell / 2),
+        (east, 60 - cell / 2),
+        (south, -60 + cell / 2),
+        (north, 60 - cell / 2),
+    ]:
         assert abs(got - edge) <= cell / 2 + 0.1
 
 
 def test_geojson_multipolygon_and_outside_lonlat_refused(tmp_path):
     path = tmp_path / "lakes.geojson"
-    write_geojson(path, {"type": "MultiPolygon", "coordinates": [[circle_ring(30.0, cx=-50)], [circle_ring(20.0, cx=50)]]})
+    write_geojson(
+        path,
+        {"type": "MultiPolygon", "coordinates": [[circle_ring(30.0, cx=-50)], [circle_ring(20.0, cx=50)]]},
+    )
     m = discretize(open_source(path), DiscretizeOptions(cell_size_m=4.0)).map
     assert abs(m.summary()["area_m2"] - polygon_area(30.0) - polygon_area(20.0)) < 0.25 * 4 * 2 * math.pi * 50
     lat, lon = latlon(0.0, 0.0)
     assert m.rowcol_of(float(lat), float(lon)) is not None and not m.mask[m.rowcol_of(float(lat), float(lon))]
-    write_geojson(path, {"type": "Polygon", "coordinates": [[[500000, 4100000], [500100, 4100000], [500100, 4100100], [500000, 4100000]]]})
+    write_geojson(
+        path,
+        {
+            "type": "Polygon",
+            "coordinates": [[[500000, 4100000], [500100, 4100000], [500100, 4100100], [500000, 4100000]]],
+        },
+    )
     with pytest.raises(GuadalError, match=r"positions must be \[lon, lat\] in degrees"):
         open_source(path)
     write_geojson(path, {"type": "LineString", "coordinates": [[-5.98, 37.4], [-5.97, 37.41]]})

@@ -27,7 +27,9 @@ def test_incremental_posterior_equals_a_full_refit(points, kernel):
     gp = IncrementalGP(kernel, points, prior_mean=0.0)
     for i, value in zip(idx, y):
         gp.add(points[i], value)
-    ref = GaussianProcessRegressor(kernel=sklearn_kernel(kernel), alpha=kernel.noise, optimizer=None).fit(points[idx], y)
+    ref = GaussianProcessRegressor(kernel=sklearn_kernel(kernel), alpha=kernel.noise, optimizer=None).fit(
+        points[idx], y
+    )
     mean, std = ref.predict(points, return_std=True)
     assert np.abs(gp.mean - mean).max() < 1e-8
     assert np.abs(gp.std - std).max() < 1e-8

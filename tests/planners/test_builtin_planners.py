@@ -3,7 +3,7 @@ import pytest
 
 from guadal_cli.envs.base import Observation
 from guadal_cli.graph import NavGraph
-from guadal_cli.maps.format import Map, load_map
+from guadal_cli.maps.format import load_map
 from guadal_cli.planners.expected_improvement import EIConfig, ExpectedImprovement
 from guadal_cli.planners.greedy import GreedyStd
 from guadal_cli.planners.lawnmower import Lawnmower, boustrophedon_routes
@@ -18,8 +18,12 @@ def lake():
 def observe(graph, positions, std=None, mean=None, remaining=1e9, visits=None):
     n = graph.n_nodes
     return Observation(
-        step=0, time_s=0.0, graph=graph, positions=positions,
-        remaining={v: remaining for v in positions}, done={v: False for v in positions},
+        step=0,
+        time_s=0.0,
+        graph=graph,
+        positions=positions,
+        remaining={v: remaining for v in positions},
+        done={v: False for v in positions},
         visits=np.zeros(n, int) if visits is None else visits,
         fields={"std": np.ones(n) if std is None else std, "mean": np.zeros(n) if mean is None else mean},
     )

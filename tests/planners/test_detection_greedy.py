@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
+from support import LAKE
 
 from guadal_cli.envs.base import Observation
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import load_map
 from guadal_cli.planners.detection_greedy import DetectionGreedy, DetectionGreedyConfig
 from guadal_cli.planners.frontier import frontier_mask
-from support import LAKE
 
 
 @pytest.fixture(scope="module")
@@ -17,8 +17,13 @@ def lake():
 def observe(graph, positions, evidence, observed=None, capacity=None, remaining=1e9):
     observed = np.ones(graph.n_nodes, bool) if observed is None else observed
     return Observation(
-        step=0, time_s=0.0, graph=graph, positions=positions, remaining={v: remaining for v in positions},
-        done={v: False for v in positions}, visits=np.zeros(graph.n_nodes, int),
+        step=0,
+        time_s=0.0,
+        graph=graph,
+        positions=positions,
+        remaining={v: remaining for v in positions},
+        done={v: False for v in positions},
+        visits=np.zeros(graph.n_nodes, int),
         fields={"evidence": evidence, "observed": observed.astype(float)},
         task={} if capacity is None else {"capacity_left": capacity},
     )
@@ -56,7 +61,9 @@ def test_densest_goes_for_the_cluster(lake, scene):
 def test_the_next_vehicle_does_not_chase_the_same_cluster(lake, scene):
     start, lone, cluster, evidence = scene
     starts = {0: start, 1: lake.node_at(12, 16)}
-    targets = planner(lake, 2, strategy="densest", separation_m=15.0).next_targets(observe(lake, starts, evidence))
+    targets = planner(lake, 2, strategy="densest", separation_m=15.0).next_targets(
+        observe(lake, starts, evidence)
+    )
     assert targets[0] in cluster and targets[1] == lone
 
 
@@ -64,7 +71,9 @@ def test_a_full_vehicle_explores_instead(lake, scene):
     start, lone, cluster, evidence = scene
     observed = np.zeros(lake.n_nodes, bool)
     observed[lake.nodes_within(start, 10.0)] = True
-    targets = planner(lake, 1).next_targets(observe(lake, {0: start}, evidence, observed=observed, capacity={0: 0}))
+    targets = planner(lake, 1).next_targets(
+        observe(lake, {0: start}, evidence, observed=observed, capacity={0: 0})
+    )
     assert frontier_mask(lake, observed)[targets[0]] and evidence[targets[0]] == 0
 
 
@@ -72,14 +81,18 @@ def test_without_evidence_it_explores_the_nearest_frontier(lake):
     start = lake.node_at(12, 15)
     observed = np.zeros(lake.n_nodes, bool)
     observed[lake.nodes_within(start, 10.0)] = True
-    target = planner(lake, 1).next_targets(observe(lake, {0: start}, np.zeros(lake.n_nodes), observed=observed))[0]
+    target = planner(lake, 1).next_targets(
+        observe(lake, {0: start}, np.zeros(lake.n_nodes), observed=observed)
+    )[0]
     edge = frontier_mask(lake, observed)
     assert edge[target] and lake.distance(start, target) == lake.distances_from(start)[edge].min()
 
 
 def test_evidence_beyond_the_budget_is_ignored(lake, scene):
     start, lone, cluster, evidence = scene
-    targets = planner(lake, 1, strategy="densest").next_targets(observe(lake, {0: start}, evidence, remaining=20.0))
+    targets = planner(lake, 1, strategy="densest").next_targets(
+        observe(lake, {0: start}, evidence, remaining=20.0)
+    )
     assert targets == {0: lone}
 
 

@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
+from support import LAKE
 
 from guadal_cli.envs.base import Observation
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import load_map
 from guadal_cli.planners.frontier import Frontier, FrontierConfig, frontier_mask
-from support import LAKE
 
 
 @pytest.fixture(scope="module")
@@ -18,8 +18,14 @@ def observe(graph, positions, observed, age=None, remaining=1e9, done=None):
     if age is not None:
         fields["age"] = age
     return Observation(
-        step=0, time_s=0.0, graph=graph, positions=positions, remaining={v: remaining for v in positions},
-        done=done or {v: False for v in positions}, visits=np.zeros(graph.n_nodes, int), fields=fields,
+        step=0,
+        time_s=0.0,
+        graph=graph,
+        positions=positions,
+        remaining={v: remaining for v in positions},
+        done=done or {v: False for v in positions},
+        visits=np.zeros(graph.n_nodes, int),
+        fields=fields,
     )
 
 
@@ -53,7 +59,7 @@ def test_each_vehicle_goes_to_its_nearest_frontier_and_they_spread(lake):
     edge = frontier_mask(lake, observed)
     dist0 = lake.distances_from(starts[0])
     assert dist0[targets[0]] == dist0[edge].min()  # the first chooser gets its nearest frontier
-    for v, t in targets.items():
+    for _v, t in targets.items():
         assert edge[t]
     chosen = list(targets.values())
     for i in range(3):

@@ -30,8 +30,17 @@ class GpsLocalFleet(LocalFleet):
         for v, node in self.positions.items():
             if node != before[v]:
                 a, b = before[v], node
-                self._fixes.append({"vehicle": v, "lat": (g.lat[a] + g.lat[b]) / 2, "lon": (g.lon[a] + g.lon[b]) / 2, "time_s": self.mission_time})
-                self._fixes.append({"vehicle": v, "lat": g.lat[b], "lon": g.lon[b], "time_s": self.mission_time})
+                self._fixes.append(
+                    {
+                        "vehicle": v,
+                        "lat": (g.lat[a] + g.lat[b]) / 2,
+                        "lon": (g.lon[a] + g.lon[b]) / 2,
+                        "time_s": self.mission_time,
+                    }
+                )
+                self._fixes.append(
+                    {"vehicle": v, "lat": g.lat[b], "lon": g.lon[b], "time_s": self.mission_time}
+                )
         return result
 
     def track_rows(self):
@@ -41,7 +50,9 @@ class GpsLocalFleet(LocalFleet):
 
 class GpsTrackBackend(SimBackend):
     def make_fleet(self, *, graph, fleet_config, sensor, mission=None):
-        return GpsLocalFleet(graph, fleet_config.vehicles, fleet_config.max_distance, fleet_config.speed, sensor)
+        return GpsLocalFleet(
+            graph, fleet_config.vehicles, fleet_config.max_distance, fleet_config.speed, sensor
+        )
 
 
 def run_mission(folder: Path, name: str, seed: int, **overrides) -> Path:

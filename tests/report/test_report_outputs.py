@@ -178,7 +178,18 @@ def test_distance_to_polyline_known_geometry():
 
 
 def test_time_axis_and_chosen_metrics(runs_root, tmp_path):
-    result = invoke("report", runs_root / "greedy-1", "-o", tmp_path, "--x", "time", "--metrics", "rmse", "--animate", "none")
+    result = invoke(
+        "report",
+        runs_root / "greedy-1",
+        "-o",
+        tmp_path,
+        "--x",
+        "time",
+        "--metrics",
+        "rmse",
+        "--animate",
+        "none",
+    )
     assert result.exit_code == 0, result.stderr
     assert sorted(p.name for p in (tmp_path / "figures").glob("metric_*.png")) == ["metric_rmse_vs_time.png"]
     assert not (tmp_path / "animations").exists()
@@ -206,4 +217,6 @@ def test_replayed_model_ends_where_the_run_ended(runs_root):
         fields = replay.fields_at(step)
     np.testing.assert_allclose(fields["mean"], run.fields["mean"], atol=1e-6)
     np.testing.assert_allclose(fields["std"], run.fields["std"], atol=1e-6)
-    np.testing.assert_allclose(replay.env.ground_truth, run.fields["ground_truth"], rtol=1e-9)  # CSV keeps 10 digits
+    np.testing.assert_allclose(
+        replay.env.ground_truth, run.fields["ground_truth"], rtol=1e-9
+    )  # CSV keeps 10 digits

@@ -74,7 +74,10 @@ def test_cli_json_csv_and_markdown_agree_with_the_csvs(runs_root):
     assert out.exit_code == 0, out.stderr
     runs_part, groups_part = out.stdout.split("\n\n")
     rows = {r["run"]: r for r in csv.DictReader(runs_part.splitlines())}
-    assert float(rows["lawnmower-1"]["total_distance"]) == last_metrics_row(runs_root / "lawnmower-1")["total_distance"]
+    assert (
+        float(rows["lawnmower-1"]["total_distance"])
+        == last_metrics_row(runs_root / "lawnmower-1")["total_distance"]
+    )
     assert [r["algorithm.type"] for r in csv.DictReader(groups_part.splitlines())] == ["greedy", "lawnmower"]
 
     out = invoke("report", runs_root, "--markdown")
@@ -118,7 +121,11 @@ def test_interrupted_and_killed_runs_are_labelled_and_left_out_of_means(runs_roo
     values = dict(zip(report.group_columns, group))
     assert values["runs"] == 1  # only the complete run enters the mean
     assert values["rmse_mean"] == last_metrics_row(folder / "greedy-1")["rmse"]
-    assert "1 interrupted" in values["status"] and "1 unfinished" in values["status"] and "left out" in values["status"]
+    assert (
+        "1 interrupted" in values["status"]
+        and "1 unfinished" in values["status"]
+        and "left out" in values["status"]
+    )
     assert any("did not complete" in w for w in report.warnings)
 
     out = invoke("report", folder, "--markdown")
@@ -196,4 +203,7 @@ def test_runs_of_different_environments_are_grouped_apart(runs_root, tmp_path):
     assert sorted(tuple(r[:2]) for r in report.group_rows) == [("another_env", "greedy"), ("gp", "greedy")]
     assert any("2 environments" in w for w in report.warnings)
     titles = [t for t, _, _ in report.display_tables()]
-    assert sum("in environment gp" in t for t in titles) == 2 and sum("in environment another_env" in t for t in titles) == 2
+    assert (
+        sum("in environment gp" in t for t in titles) == 2
+        and sum("in environment another_env" in t for t in titles) == 2
+    )

@@ -46,8 +46,16 @@ def _free_udp_port() -> int:
 def fleet():
     udp_port = _free_udp_port()
     proc, info = start_sitl(
-        "--vehicles", str(VEHICLES), "--base-port", "0", "--speedup", str(SPEEDUP),
-        "--serial", "pty", "--udp-out", f"127.0.0.1:{udp_port}",
+        "--vehicles",
+        str(VEHICLES),
+        "--base-port",
+        "0",
+        "--speedup",
+        str(SPEEDUP),
+        "--serial",
+        "pty",
+        "--udp-out",
+        f"127.0.0.1:{udp_port}",
     )
     info["udp_port"] = udp_port
     yield info
@@ -85,7 +93,9 @@ def _echo(conn):
 
 
 def _send_target(conn, sysid, latlon, mask=POSITION_ONLY, frame=6):
-    conn.mav.set_position_target_global_int_send(0, sysid, 1, frame, mask, latlon[0], latlon[1], 0, 0, 0, 0, 0, 0, 0, 0, 0)
+    conn.mav.set_position_target_global_int_send(
+        0, sysid, 1, frame, mask, latlon[0], latlon[1], 0, 0, 0, 0, 0, 0, 0, 0, 0
+    )
 
 
 # ------------------------------------------------------------------ identity and connections
@@ -205,7 +215,11 @@ def test_guided_target_is_driven_at_most_max_speed_and_reached_once(gcs):
     here, t_start = _position(conn, sysid)
     target = offset((here[0] / 1e7, here[1] / 1e7), 8.0)
     _send_target(conn, sysid, target)
-    seen = collect(conn, ["GLOBAL_POSITION_INT", "VFR_HUD", "MISSION_ITEM_REACHED"], lambda m: m.get_type() == "MISSION_ITEM_REACHED")
+    seen = collect(
+        conn,
+        ["GLOBAL_POSITION_INT", "VFR_HUD", "MISSION_ITEM_REACHED"],
+        lambda m: m.get_type() == "MISSION_ITEM_REACHED",
+    )
     assert seen[-1].seq == 0
     speeds = [math.hypot(m.vx, m.vy) / 100 for m in seen if m.get_type() == "GLOBAL_POSITION_INT"]
     speeds += [m.groundspeed for m in seen if m.get_type() == "VFR_HUD"]
@@ -216,7 +230,8 @@ def test_guided_target_is_driven_at_most_max_speed_and_reached_once(gcs):
     assert metres_between(pos, target) <= 2.5
     # loitering afterwards: 30 simulated seconds and no second arrival
     later = collect(
-        conn, ["GLOBAL_POSITION_INT", "MISSION_ITEM_REACHED"],
+        conn,
+        ["GLOBAL_POSITION_INT", "MISSION_ITEM_REACHED"],
         lambda m: m.get_type() == "GLOBAL_POSITION_INT" and m.time_boot_ms > t_arrived + 30_000,
     )
     assert not [m for m in later if m.get_type() == "MISSION_ITEM_REACHED"]
@@ -234,7 +249,8 @@ def test_replaced_target_gets_no_arrival_and_disarmed_boat_none_at_all(gcs):
     home = (here[0] / 1e7, here[1] / 1e7)
     _send_target(conn, sysid, here)  # disarmed, already within the radius
     later = collect(
-        conn, ["GLOBAL_POSITION_INT", "MISSION_ITEM_REACHED"],
+        conn,
+        ["GLOBAL_POSITION_INT", "MISSION_ITEM_REACHED"],
         lambda m: m.get_type() == "GLOBAL_POSITION_INT" and m.time_boot_ms > t0 + 20_000,
     )
     assert not [m for m in later if m.get_type() == "MISSION_ITEM_REACHED"]
@@ -244,11 +260,16 @@ def test_replaced_target_gets_no_arrival_and_disarmed_boat_none_at_all(gcs):
     _send_target(conn, sysid, north)
     wait_for(conn, "GLOBAL_POSITION_INT", lambda m: metres_between((m.lat, m.lon), here) > 0.5)
     _send_target(conn, sysid, south)
-    seen = collect(conn, ["GLOBAL_POSITION_INT", "MISSION_ITEM_REACHED"], lambda m: m.get_type() == "MISSION_ITEM_REACHED")
+    seen = collect(
+        conn,
+        ["GLOBAL_POSITION_INT", "MISSION_ITEM_REACHED"],
+        lambda m: m.get_type() == "MISSION_ITEM_REACHED",
+    )
     pos, t_arrived = _position(conn, sysid)
     assert metres_between(pos, south) <= 2.5
     later = collect(
-        conn, ["GLOBAL_POSITION_INT", "MISSION_ITEM_REACHED"],
+        conn,
+        ["GLOBAL_POSITION_INT", "MISSION_ITEM_REACHED"],
         lambda m: m.get_type() == "GLOBAL_POSITION_INT" and m.time_boot_ms > t_arrived + 20_000,
     )
     reached = [m for m in seen + later if m.get_type() == "MISSION_ITEM_REACHED"]
@@ -265,7 +286,9 @@ def test_velocity_target_steers_then_times_out_after_three_seconds(gcs):
         """Like a GCS: re-send the velocity on every position report until the boat runs east."""
         if msg.vy > 25:  # cm/s eastwards
             return True
-        conn.mav.set_position_target_global_int_send(0, sysid, 1, 6, velocity_only, 0, 0, 0, 0.0, 0.3, 0, 0, 0, 0, 0, 0)
+        conn.mav.set_position_target_global_int_send(
+            0, sysid, 1, 6, velocity_only, 0, 0, 0, 0.0, 0.3, 0, 0, 0, 0, 0, 0
+        )
         return False
 
     moving = wait_for(conn, "GLOBAL_POSITION_INT", keep_streaming)
@@ -296,7 +319,9 @@ def test_do_reposition_needs_command_int(gcs):
     here, _ = _position(conn, sysid)
     target = offset((here[0] / 1e7, here[1] / 1e7), 4.0, 3.0)
     assert command_long(conn, sysid, 192, -1, 1, 0, 0, target[0] / 1e7, target[1] / 1e7, 0) == UNSUPPORTED
-    assert command_int(conn, sysid, 192, 6, (-1, 0, 0, 0), target[0], target[1]) == DENIED  # HOLD, no mode flag
+    assert (
+        command_int(conn, sysid, 192, 6, (-1, 0, 0, 0), target[0], target[1]) == DENIED
+    )  # HOLD, no mode flag
     assert heartbeat_of(conn, sysid).custom_mode == HOLD
     assert command_int(conn, sysid, 192, 6, (-1, 1, 0, 0), target[0], target[1]) == ACCEPTED
     assert heartbeat_of(conn, sysid).custom_mode == GUIDED
@@ -385,7 +410,9 @@ def test_parameters_read_set_and_list(gcs):
     wp_speed = wait_for(conn, "PARAM_VALUE", lambda m: m.param_id == "WP_SPEED")
     assert wp_speed.param_value == pytest.approx(MAX_SPEED)  # consistent with the hull's top speed
     conn.mav.param_set_send(sysid, 1, b"WP_RADIUS", 3.0, 9)
-    assert wait_for(conn, "PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS").param_value == pytest.approx(3.0)
+    assert wait_for(conn, "PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS").param_value == pytest.approx(
+        3.0
+    )
     conn.mav.param_set_send(sysid, 1, b"WP_RADIUS", 2.0, 9)
     wait_for(conn, "PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS" and m.param_value == 2.0)
     conn.mav.param_request_list_send(sysid, 1)
@@ -420,12 +447,16 @@ def test_garbage_is_counted_and_a_dropped_client_is_replaced(gcs, fleet):
     assert command_long(conn, sysid, 511, 33, math.inf) == DENIED
     assert command_long(conn, sysid, 178, 1, math.nan) == FAILED
     assert set_mode(conn, sysid, GUIDED) == ACCEPTED
-    conn.mav.set_position_target_global_int_send(0, sysid, 1, 6, 0x0DC7, 0, 0, 0, math.nan, math.nan, 0, 0, 0, 0, 0, 0)
+    conn.mav.set_position_target_global_int_send(
+        0, sysid, 1, 6, 0x0DC7, 0, 0, 0, math.nan, math.nan, 0, 0, 0, 0, 0, 0
+    )
     wait_for(conn, "GLOBAL_POSITION_INT")
     barrier(conn, sysid)  # the original client is still served
     again = connect(f"tcp:127.0.0.1:{port}")
     again.mav.param_request_read_send(sysid, 1, b"WP_SPEED", -1)
-    assert wait_for(again, "PARAM_VALUE", lambda m: m.param_id == "WP_SPEED").param_value == pytest.approx(MAX_SPEED)
+    assert wait_for(again, "PARAM_VALUE", lambda m: m.param_id == "WP_SPEED").param_value == pytest.approx(
+        MAX_SPEED
+    )
     again.close()
 
 
@@ -436,7 +467,9 @@ def test_pseudo_terminal_serial_endpoint(fleet):
     hb = wait_for(conn, "HEARTBEAT")
     assert hb.get_srcSystem() == 2 and hb.type == 11
     conn.mav.param_request_read_send(2, 1, b"WP_RADIUS", -1)
-    assert wait_for(conn, "PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS").param_value == pytest.approx(2.0)
+    assert wait_for(conn, "PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS").param_value == pytest.approx(
+        2.0
+    )
     # TIMESYNC answers with the vehicle's (simulated) clock
     conn.mav.timesync_send(0, 123456789)
     reply = wait_for(conn, "TIMESYNC", lambda m: m.ts1 == 123456789)
@@ -460,9 +493,22 @@ def test_works_through_mavproxy(fleet, tmp_path):
         pytest.skip("MAVProxy is not installed in this environment")
     udp_port = _free_udp_port()
     router = subprocess.Popen(
-        [sys.executable, str(mavproxy), "--master", f"tcp:127.0.0.1:{fleet['vehicles'][2]['tcp']}",
-         "--out", f"udp:127.0.0.1:{udp_port}", "--daemon", "--non-interactive", "--state-basedir", str(tmp_path)],
-        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        [
+            sys.executable,
+            str(mavproxy),
+            "--master",
+            f"tcp:127.0.0.1:{fleet['vehicles'][2]['tcp']}",
+            "--out",
+            f"udp:127.0.0.1:{udp_port}",
+            "--daemon",
+            "--non-interactive",
+            "--state-basedir",
+            str(tmp_path),
+        ],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
     )
     try:
         conn = connect(f"udpin:127.0.0.1:{udp_port}")

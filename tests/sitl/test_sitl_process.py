@@ -6,12 +6,11 @@ from __future__ import annotations
 import math
 import signal
 import socket
-import subprocess
 import statistics
+import subprocess
 
 import pytest
 from sitl_support import METRES_PER_DEG, SITL_MODULE, connect, start_sitl, stop_sitl, wait_for
-
 
 BAD_RUNS = {
     "home": ["--home", "north-of-here", "--base-port", "0"],
@@ -31,7 +30,10 @@ def bad_runs():
         port = busy.getsockname()[1]
         runs = {name: [*SITL_MODULE, *args] for name, args in BAD_RUNS.items()}
         runs["busy"] = [*SITL_MODULE, "--base-port", str(port)]
-        procs = {name: subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for name, cmd in runs.items()}
+        procs = {
+            name: subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            for name, cmd in runs.items()
+        }
         results = {name: (p.wait(timeout=60), *p.communicate()) for name, p in procs.items()}
     results["busy_port"] = port
     return results
@@ -63,8 +65,21 @@ def test_busy_port_is_reported_not_raised(bad_runs):
 
 def test_current_drifts_the_boat_noise_scatters_reports_and_sigint_stops_cleanly():
     proc, info = start_sitl(
-        "--base-port", "0", "--speedup", "100", "--current", "0.2,0", "--gps-noise", "0.5", "--seed", "7",
-        "--vehicles", "2", "--homes", "10.0,20.0; 10.001,20.0", entry=SITL_MODULE,
+        "--base-port",
+        "0",
+        "--speedup",
+        "100",
+        "--current",
+        "0.2,0",
+        "--gps-noise",
+        "0.5",
+        "--seed",
+        "7",
+        "--vehicles",
+        "2",
+        "--homes",
+        "10.0,20.0; 10.001,20.0",
+        entry=SITL_MODULE,
     )
     try:
         assert [v["home"] for v in info["vehicles"]] == [[10.0, 20.0], [10.001, 20.0]]
@@ -84,7 +99,9 @@ def test_current_drifts_the_boat_noise_scatters_reports_and_sigint_stops_cleanly
     elapsed = (samples[-1].time_boot_ms - first.time_boot_ms) / 1000
     # disarmed and drifting east at 0.2 m/s: about 12 m in 60 s, give or take the GPS noise
     assert abs((east[-1] - east[0]) - 0.2 * elapsed) < 3.0
-    residual = [e - 0.2 * (m.time_boot_ms - first.time_boot_ms) / 1000 - east[0] for e, m in zip(east, samples)]
+    residual = [
+        e - 0.2 * (m.time_boot_ms - first.time_boot_ms) / 1000 - east[0] for e, m in zip(east, samples)
+    ]
     assert 0.2 < statistics.pstdev(north) < 1.0 and statistics.pstdev(residual) > 0.2
     assert all(m.vy == 20 and m.vx == 0 for m in samples)  # reported velocity is the drift, cm/s
     # the electronics draw the battery down even at rest, slowly

@@ -10,17 +10,22 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))  # vehicle_support, beside this file
 
-from guadal_cli.fleet.broker import start_broker
-from guadal_cli.maps.format import Map
-from guadal_cli.graph import NavGraph
 from vehicle_support import LAKE, Stack  # noqa: E402
 
+from guadal_cli.fleet.broker import start_broker
+from guadal_cli.graph import NavGraph
+from guadal_cli.maps.format import Map
 
 
 @pytest.fixture(scope="session")
 def lake(tmp_path_factory):
     mask = np.array([[c == "1" for c in row] for row in LAKE])
-    m = Map(mask=mask, cell_size_m=5.0, reference={"row": 3, "col": 4, "lat": 37.418, "lon": -5.983}, name="tongue")
+    m = Map(
+        mask=mask,
+        cell_size_m=5.0,
+        reference={"row": 3, "col": 4, "lat": 37.418, "lon": -5.983},
+        name="tongue",
+    )
     path = tmp_path_factory.mktemp("map") / "tongue.json"
     m.save(path)
     m.source = path
@@ -45,4 +50,3 @@ def stack(broker, lake, tmp_path):
     yield make
     for s in reversed(made):
         s.close()
-

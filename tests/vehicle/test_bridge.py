@@ -15,12 +15,12 @@ import textwrap
 
 import numpy as np
 import pytest
-
 from fleet_support import wait_for
+from vehicle_support import Planner, Stack
+
 from guadal_cli.fleet import messages
 from guadal_cli.fleet.broker import start_broker
 from guadal_cli.maps.format import haversine_m
-from vehicle_support import Planner, Stack
 
 MANUAL, HOLD, GUIDED = 0, 4, 15
 
@@ -40,8 +40,15 @@ def shared(own_broker, lake, tmp_path_factory):
     truth = tmp_path_factory.mktemp("truth") / "truth.csv"
     # a distinct value per cell: 10*row + col
     np.savetxt(truth, np.add.outer(10.0 * np.arange(m.shape[0]), np.arange(m.shape[1])), delimiter=",")
-    s = Stack(broker, lake, tmp_path_factory.mktemp("bridge"), home_node=g.node_at(1, 1), speedup=20.0, telemetry_hz=20,
-              bridge_args=["--sensor", f"synthetic:{truth}", "--failsafe-timeout", "120"])
+    s = Stack(
+        broker,
+        lake,
+        tmp_path_factory.mktemp("bridge"),
+        home_node=g.node_at(1, 1),
+        speedup=20.0,
+        telemetry_hz=20,
+        bridge_args=["--sensor", f"synthetic:{truth}", "--failsafe-timeout", "120"],
+    )
     yield s
     s.close()
 
@@ -93,7 +100,9 @@ def test_path_around_the_land_tongue_never_crosses_land(shared, planner):
         assert on_water(m, a_lat, a_lon), f"GPS fix {a_lat},{a_lon} is on land"
         # fixes a couple of metres apart: the chord between them is the track, and stays on water too
         if haversine_m(a_lat, a_lon, b_lat, b_lon) <= 3.0:
-            assert on_water(m, (a_lat + b_lat) / 2, (a_lon + b_lon) / 2), "the boat crossed land between two fixes"
+            assert on_water(m, (a_lat + b_lat) / 2, (a_lon + b_lon) / 2), (
+                "the boat crossed land between two fixes"
+            )
     # it went round the southern tip: the only water joining the basins is row 5
     assert max(m.rowcol_of(lat, lon)[0] for lat, lon in fixes) == 5
 
@@ -110,7 +119,9 @@ def test_targets_off_the_water_are_rejected_with_a_reason(shared, planner):
     assert f"not the node {node}" in planner.wait_ack(mismatch, "rejected", 5)["reason"]
     # the same command again (a retransmission) gets the same answer
     planner.send("goto", seq=mismatch, node=node, lat=float(g.lat[other]), lon=float(g.lon[other]))
-    planner.wait(lambda: len(planner.acks(mismatch, "rejected")) == 2, 5, "duplicate of a rejected goto not answered")
+    planner.wait(
+        lambda: len(planner.acks(mismatch, "rejected")) == 2, 5, "duplicate of a rejected goto not answered"
+    )
     assert not planner.acks(status="accepted")
 
 
@@ -119,11 +130,15 @@ def test_duplicate_seq_repeats_the_answer_without_restarting(shared, planner):
     target = g.node_at(3, 2)
     seq = planner.goto(target, g)
     planner.send("goto", seq=seq, node=target, lat=float(g.lat[target]), lon=float(g.lon[target]))
-    planner.wait(lambda: len(planner.acks(seq, "accepted")) == 2, 5, "the duplicate was not answered 'accepted'")
+    planner.wait(
+        lambda: len(planner.acks(seq, "accepted")) == 2, 5, "the duplicate was not answered 'accepted'"
+    )
     first = planner.wait_ack(seq, "reached", 20)
     before = shared_status(shared)["counters"]["duplicate_seq"]
     planner.send("goto", seq=seq, node=target, lat=float(g.lat[target]), lon=float(g.lon[target]))
-    planner.wait(lambda: len(planner.acks(seq, "reached")) == 2, 5, "the duplicate was not answered 'reached'")
+    planner.wait(
+        lambda: len(planner.acks(seq, "reached")) == 2, 5, "the duplicate was not answered 'reached'"
+    )
     again = planner.acks(seq, "reached")[-1]
     # the same arrival, reported again: nothing was re-planned or re-driven
     assert (again["lat"], again["lon"]) == (first["lat"], first["lon"])
@@ -152,9 +167,12 @@ def test_bad_payloads_are_counted_and_the_bridge_keeps_answering(shared, planner
     planner.raw(json.dumps({"v": 2, "type": "ping", "seq": planner.seq + 1}).encode())
     planner.raw(messages.encode("ping", seq=planner.seq + 1, vehicle=7))
     planner.wait_status(
-        lambda st: st["counters"]["bad_payload"] == before["bad_payload"] + 4
-        and st["counters"]["wrong_vehicle"] == before["wrong_vehicle"] + 1,
-        5, "bad payloads not counted",
+        lambda st: (
+            st["counters"]["bad_payload"] == before["bad_payload"] + 4
+            and st["counters"]["wrong_vehicle"] == before["wrong_vehicle"] + 1
+        ),
+        5,
+        "bad payloads not counted",
     )
     log = shared.log()
     assert "exceeds the 16384-byte limit" in log and "unknown message type 'dance'" in log
@@ -185,7 +203,13 @@ def test_status_is_retained_with_counters(shared, own_broker):
         late.wait(lambda: late.messages, 5, "no retained status")
         status = json.loads(late.messages[0].payload)
         assert late.messages[0].retain and status["state"] == "online"
-        assert set(status["counters"]) >= {"bad_payload", "stale_seq", "duplicate_seq", "command_failed", "failsafe"}
+        assert set(status["counters"]) >= {
+            "bad_payload",
+            "stale_seq",
+            "duplicate_seq",
+            "command_failed",
+            "failsafe",
+        }
     finally:
         late.close()
 
@@ -202,10 +226,14 @@ def test_hold_stops_the_boat_and_the_next_goto_resumes(shared, planner):
     planner.wait_status(lambda st: st["state"] == "hold", 5, "status does not say hold")
     # a planner that ends cleanly (hold, then offline) is not a comms loss: no failsafe
     planner_status = messages.topic(shared.fleet, None, "status")
-    planner.client.publish(planner_status, messages.encode("status", state="offline"), qos=1, retain=True).wait_for_publish(5)
+    planner.client.publish(
+        planner_status, messages.encode("status", state="offline"), qos=1, retain=True
+    ).wait_for_publish(5)
     wait_for(lambda: "vehicle already in HOLD" in shared.log(), 5, "planner offline not noticed")
     assert planner.status()["state"] == "hold"
-    planner.client.publish(planner_status, messages.encode("status", state="online"), qos=1, retain=True).wait_for_publish(5)
+    planner.client.publish(
+        planner_status, messages.encode("status", state="online"), qos=1, retain=True
+    ).wait_for_publish(5)
     seq = planner.goto(g.node_at(3, 2), g)
     planner.wait_ack(seq, "reached", 20)
     assert planner.status()["state"] == "online"
@@ -272,8 +300,15 @@ PLANNER_WITH_WILL = textwrap.dedent(
 
 def test_failsafe_holds_on_silence_and_on_the_planners_last_will(broker, lake, tmp_path):
     # a slow boat (5 m/s of wall time), so it is still driving when the planner falls silent
-    s = Stack(broker, lake, tmp_path, home_node=lake[1].node_at(5, 1), speedup=10.0, max_speed=0.5,
-              bridge_args=["--failsafe-timeout", "2.5"])
+    s = Stack(
+        broker,
+        lake,
+        tmp_path,
+        home_node=lake[1].node_at(5, 1),
+        speedup=10.0,
+        max_speed=0.5,
+        bridge_args=["--failsafe-timeout", "2.5"],
+    )
     try:
         g, p = s.graph, s.planner
         target = g.node_at(5, 7)  # 30 m away: 6 s
@@ -282,7 +317,9 @@ def test_failsafe_holds_on_silence_and_on_the_planners_last_will(broker, lake, t
         s.emulator.heartbeat(lambda hb: hb.custom_mode == GUIDED, 5, "the emulator never entered GUIDED")
         status = p.wait_status(lambda st: st["state"] == "failsafe", 8, "no failsafe after planner silence")
         assert "no planner message" in status["failsafe_reason"]
-        s.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "the emulator is not in HOLD after the failsafe")
+        s.emulator.heartbeat(
+            lambda hb: hb.custom_mode == HOLD, 5, "the emulator is not in HOLD after the failsafe"
+        )
         assert "interrupted by the failsafe (no planner message" in p.acks(seq, "failed")[-1]["reason"]
 
         # the next goto resumes: GUIDED again, and it gets there (the planner is alive again: it pings)
@@ -295,16 +332,23 @@ def test_failsafe_holds_on_silence_and_on_the_planners_last_will(broker, lake, t
         p.wait_ack(seq, "reached", 20)
 
         # a planner process that dies without a word: the broker publishes its last will
-        dying = subprocess.Popen([sys.executable, "-c", PLANNER_WITH_WILL, str(broker.port), s.fleet],
-                                 stdout=subprocess.PIPE, text=True)
+        dying = subprocess.Popen(
+            [sys.executable, "-c", PLANNER_WITH_WILL, str(broker.port), s.fleet],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         try:
             assert dying.stdout.readline().strip() == "up"
             dying.kill()
         finally:
             dying.wait(5)
-        status = p.wait_status(lambda st: st["state"] == "failsafe", 12, "no failsafe after the planner's last will")
+        status = p.wait_status(
+            lambda st: st["state"] == "failsafe", 12, "no failsafe after the planner's last will"
+        )
         assert status["failsafe_reason"] == "the planner went offline"
-        s.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "the emulator is not in HOLD after the last will")
+        s.emulator.heartbeat(
+            lambda hb: hb.custom_mode == HOLD, 5, "the emulator is not in HOLD after the last will"
+        )
         assert status["counters"]["failsafe"] == 2
         assert "FAILSAFE" in s.log()
     finally:

@@ -36,10 +36,16 @@ def test_bad_settings_get_one_sentence(run, tmp_path, lake):
     map_path = str(lake[2])
     base = ["--vehicle-id", "0", "--mavlink", "udpin:127.0.0.1:0"]
     cases = [
-        (base + ["--map", map_path, "--broker", "http://host:1883"], "must look like mqtt://host:port or mqtt://user:password@host:port"),
+        (
+            base + ["--map", map_path, "--broker", "http://host:1883"],
+            "must look like mqtt://host:port or mqtt://user:password@host:port",
+        ),
         (base + ["--map", str(tmp_path / "nope.json")], "nope.json' does not exist"),
         (base + ["--map", map_path, "--sensor", "synthetik:x.csv"], "Did you mean 'synthetic'?"),
-        (base + ["--map", map_path, "--sensor", "synthetic:" + str(tmp_path / "t.csv")], "sensor synthetic: file"),
+        (
+            base + ["--map", map_path, "--sensor", "synthetic:" + str(tmp_path / "t.csv")],
+            "sensor synthetic: file",
+        ),
         (["--mavlink", "udpin:127.0.0.1:0", "--map", map_path], "vehicle_id: required, but missing."),
         (base + ["--map", map_path, "--failsafe-timeout", "-1"], "failsafe_timeout: must be greater than 0"),
     ]
@@ -51,15 +57,25 @@ def test_bad_settings_get_one_sentence(run, tmp_path, lake):
 
 
 def test_config_file_keys_are_checked(run, tmp_path):
-    code, output = run(config="vehicle_id: 0\nmavlink: udpin:127.0.0.1:0\nmap: MAP\nfailsafe_timout: 3\n", tmp=tmp_path)
+    code, output = run(
+        config="vehicle_id: 0\nmavlink: udpin:127.0.0.1:0\nmap: MAP\nfailsafe_timout: 3\n", tmp=tmp_path
+    )
     assert code == 2 and "failsafe_timout: unknown key (allowed:" in output and "failsafe_timeout" in output
     code, output = run(config="- just\n- a list\n", tmp=tmp_path)
     assert code == 2 and "must be a mapping of settings" in output
 
 
 def test_no_autopilot_is_a_clear_error(run, tmp_path, lake):
-    code, output = run("--vehicle-id", "0", "--mavlink", f"udpin:127.0.0.1:{free_udp_port()}", "--map", str(lake[2]),
-                       "--connect-timeout", "0.5")
+    code, output = run(
+        "--vehicle-id",
+        "0",
+        "--mavlink",
+        f"udpin:127.0.0.1:{free_udp_port()}",
+        "--map",
+        str(lake[2]),
+        "--connect-timeout",
+        "0.5",
+    )
     assert code == 2
     assert "no autopilot heartbeat on 'udpin:127.0.0.1:" in output and "within 0.5 s" in output
 
@@ -73,10 +89,24 @@ def test_sigterm_while_waiting_for_the_autopilot_exits_quietly(lake, tmp_path):
 
     log = tmp_path / "bridge.log"
     with open(log, "w") as out:
-        proc = subprocess.Popen(GUADAL + ["bridge", "--vehicle-id", "0", "--mavlink", f"udpin:127.0.0.1:{free_udp_port()}",
-                                          "--map", str(lake[2])], stdout=out, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(
+            GUADAL
+            + [
+                "bridge",
+                "--vehicle-id",
+                "0",
+                "--mavlink",
+                f"udpin:127.0.0.1:{free_udp_port()}",
+                "--map",
+                str(lake[2]),
+            ],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+        )
         try:
-            wait_for(lambda: "waiting for the autopilot" in log.read_text(), 20, "the bridge did not start waiting")
+            wait_for(
+                lambda: "waiting for the autopilot" in log.read_text(), 20, "the bridge did not start waiting"
+            )
             proc.send_signal(signal.SIGTERM)
             assert proc.wait(10) == 0
         finally:
@@ -102,9 +132,15 @@ def test_config_file_paths_are_relative_to_the_file_and_options_win(tmp_path):
     assert config.sensor_base_dir == deploy
     assert (config.vehicle_id, config.failsafe_timeout) == (2, 5.0)
     assert parse_broker_url(config.broker) == {
-        "host": "broker.example.org", "port": 8883, "tls": True, "username": "boat2", "password": "s@cret",
+        "host": "broker.example.org",
+        "port": 8883,
+        "tls": True,
+        "username": "boat2",
+        "password": "s@cret",
     }
     # a sensor given on the command line is relative to where it was typed, not to the file
     config = load_config(deploy / "bridge.yaml", {"sensor": "synthetic:here.csv"})
     assert config.sensor_base_dir is None and config.map_path() == deploy / "lake.json"
-    assert load_config(None, {"vehicle_id": 0, "mavlink": "tcp:h:1", "map": "m.json"}).map_path() == Path("m.json")
+    assert load_config(None, {"vehicle_id": 0, "mavlink": "tcp:h:1", "map": "m.json"}).map_path() == Path(
+        "m.json"
+    )

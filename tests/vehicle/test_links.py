@@ -10,29 +10,44 @@ import sys
 from pathlib import Path
 
 import pytest
+from vehicle_support import Probe, Stack
 
 from guadal_cli.maps.format import haversine_m
-from vehicle_support import Probe, Stack
 
 RTL, HOLD = 11, 4  # Rover refuses to arm in RTL unless forced
 
 
-def test_serial_autopilot_that_first_refuses_to_arm_then_drives_and_measures_with_a_serial_probe(broker, lake, tmp_path):
+def test_serial_autopilot_that_first_refuses_to_arm_then_drives_and_measures_with_a_serial_probe(
+    broker, lake, tmp_path
+):
     """A boat on its real wires: autopilot and probe on serial lines; arming refused, reported, retried."""
     master, slave = os.openpty()
     probe = Probe(master, [b"VALUE 12.5\n"])
     probe.start()
-    s = Stack(broker, lake, tmp_path, home_node=lake[1].node_at(2, 1), serial=True, speedup=20.0, wait_armed=False,
-              before_bridge=lambda emulator: emulator.set_mode(RTL),
-              bridge_args=["--sensor", f"serial:{os.ttyname(slave)}", "--arm-retry-interval", "0.3"])
+    s = Stack(
+        broker,
+        lake,
+        tmp_path,
+        home_node=lake[1].node_at(2, 1),
+        serial=True,
+        speedup=20.0,
+        wait_armed=False,
+        before_bridge=lambda emulator: emulator.set_mode(RTL),
+        bridge_args=["--sensor", f"serial:{os.ttyname(slave)}", "--arm-retry-interval", "0.3"],
+    )
     try:
         assert s.emulator.vehicle["serial"].startswith("/dev/")
-        status = s.planner.wait_status(lambda st: st["arm_error"] and st["counters"]["arm_failed"] >= 2, 10,
-                                       "arming refusals not reported and retried")
+        status = s.planner.wait_status(
+            lambda st: st["arm_error"] and st["counters"]["arm_failed"] >= 2,
+            10,
+            "arming refusals not reported and retried",
+        )
         assert "refused to arm: FAILED" in status["arm_error"] and "Mode not armable" in status["arm_error"]
         assert status["armed"] is False and status["counters"]["command_failed"] >= 2
         s.emulator.set_mode(HOLD)  # someone fixes the cause; the next attempt arms
-        s.planner.wait_status(lambda st: st["armed"] and st["arm_error"] is None, 10, "not armed after the fix")
+        s.planner.wait_status(
+            lambda st: st["armed"] and st["arm_error"] is None, 10, "not armed after the fix"
+        )
 
         g, p = s.graph, s.planner
         target = g.node_at(4, 3)
@@ -66,15 +81,33 @@ def test_goto_through_mavproxy(broker, lake, tmp_path):
     def through_mavproxy(emulator, workdir):
         port = free_udp_port()
         router = subprocess.Popen(
-            [sys.executable, mavproxy_binary(), "--master", emulator.tcp, "--out", f"udp:127.0.0.1:{port}",
-             "--daemon", "--non-interactive"],
-            cwd=workdir, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            [
+                sys.executable,
+                mavproxy_binary(),
+                "--master",
+                emulator.tcp,
+                "--out",
+                f"udp:127.0.0.1:{port}",
+                "--daemon",
+                "--non-interactive",
+            ],
+            cwd=workdir,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         return f"udpin:127.0.0.1:{port}", router
 
     # and with the acknowledged kind of guided target, whose MISSION_ACK must find its way back
-    s = Stack(broker, lake, tmp_path, home_node=lake[1].node_at(5, 5), speedup=20.0, route=through_mavproxy,
-              bridge_args=["--waypoint-command", "mission_item"])
+    s = Stack(
+        broker,
+        lake,
+        tmp_path,
+        home_node=lake[1].node_at(5, 5),
+        speedup=20.0,
+        route=through_mavproxy,
+        bridge_args=["--waypoint-command", "mission_item"],
+    )
     try:
         g, p = s.graph, s.planner
         target = g.node_at(1, 7)

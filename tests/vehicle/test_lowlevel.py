@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from vehicle_support import LAKE
 
 from guadal_cli.errors import GuadalError
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import Map, haversine_m
 from guadal_cli.vehicle.lowlevel import LowLevelPlanner, refine_map
-from vehicle_support import LAKE
-
 
 
 def lake(latlon: bool = False) -> Map:

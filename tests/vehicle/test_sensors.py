@@ -6,19 +6,21 @@ import os
 
 import numpy as np
 import pytest
+from vehicle_support import Probe
 
 from guadal_cli import plugins
 from guadal_cli.errors import GuadalError
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import Map
 from guadal_cli.vehicle.sensors import SensorContext, SensorError, build_sensor, parse_sensor_option
-from vehicle_support import Probe
 
 
 @pytest.fixture
 def graph():
     mask = np.array([[c == "1" for c in row] for row in ["0110", "1111", "0110"]])
-    return NavGraph(Map(mask=mask, cell_size_m=10.0, reference={"row": 1, "col": 1, "lat": 37.4, "lon": -5.9}))
+    return NavGraph(
+        Map(mask=mask, cell_size_m=10.0, reference={"row": 1, "col": 1, "lat": 37.4, "lon": -5.9})
+    )
 
 
 def test_builtin_sensors_are_entry_points():
@@ -68,18 +70,29 @@ def test_synthetic_grid_of_the_wrong_shape_is_named(tmp_path, graph):
 
 def test_replay_gives_the_nearest_sample(tmp_path, graph):
     m = graph.map
-    (tmp_path / "s.csv").write_text(f"lat,lon,value\n{m.lat[1, 0]},{m.lon[1, 0]},10\n{m.lat[1, 3]},{m.lon[1, 3]},20\n")
+    (tmp_path / "s.csv").write_text(
+        f"lat,lon,value\n{m.lat[1, 0]},{m.lon[1, 0]},10\n{m.lat[1, 3]},{m.lon[1, 3]},20\n"
+    )
     sensor = build_sensor({"type": "replay", "path": str(tmp_path / "s.csv")}, SensorContext(graph))
     assert sensor.read(m.lat[1, 1], m.lon[1, 1]) == 10.0
     assert sensor.read(m.lat[2, 2], m.lon[2, 2]) == 20.0
     (tmp_path / "n.csv").write_text("node,value\n0,1.25\n")
-    assert build_sensor({"type": "replay", "path": str(tmp_path / "n.csv")}, SensorContext(graph)).read(37.4, -5.9) == 1.25
+    assert (
+        build_sensor({"type": "replay", "path": str(tmp_path / "n.csv")}, SensorContext(graph)).read(
+            37.4, -5.9
+        )
+        == 1.25
+    )
 
 
 @pytest.mark.parametrize(
     "text, message",
-    [("lat,lon,value\n1,2,x\n", "line 2 must give numbers"), ("node,value\n99,1\n", "node 99 is not on the map"),
-     ("a,b\n1,2\n", "line 2 must give numbers"), ("lat,lon,value\n", "has no samples")],
+    [
+        ("lat,lon,value\n1,2,x\n", "line 2 must give numbers"),
+        ("node,value\n99,1\n", "node 99 is not on the map"),
+        ("a,b\n1,2\n", "line 2 must give numbers"),
+        ("lat,lon,value\n", "has no samples"),
+    ],
 )
 def test_replay_bad_files_get_one_sentence(tmp_path, graph, text, message):
     (tmp_path / "s.csv").write_text(text)

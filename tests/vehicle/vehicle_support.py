@@ -14,6 +14,7 @@ import uuid
 from pathlib import Path
 
 from fleet_support import Inbox
+
 from guadal_cli.fleet import messages
 from guadal_cli.graph import NavGraph
 
@@ -63,8 +64,21 @@ class Emulator:
 
         self.stream = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=250)
         udp_port = self.stream.port.getsockname()[1]
-        cmd = GUADAL + ["sitl", "--vehicles", "1", "--home", f"{home[0]},{home[1]}", "--speedup", str(speedup),
-                        "--base-port", "0", "--max-speed", str(max_speed), "--udp-out", f"127.0.0.1:{udp_port}"]
+        cmd = GUADAL + [
+            "sitl",
+            "--vehicles",
+            "1",
+            "--home",
+            f"{home[0]},{home[1]}",
+            "--speedup",
+            str(speedup),
+            "--base-port",
+            "0",
+            "--max-speed",
+            str(max_speed),
+            "--udp-out",
+            f"127.0.0.1:{udp_port}",
+        ]
         if serial:
             cmd += ["--serial", "pty"]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
@@ -145,7 +159,11 @@ class Planner(Inbox):
         return [json.loads(m.payload) for m in self.on(self.topic(channel)) if m.payload]
 
     def acks(self, seq: int | None = None, status: str | None = None) -> list[dict]:
-        return [a for a in self.decoded("ack") if (seq is None or a["seq"] == seq) and (status is None or a["status"] == status)]
+        return [
+            a
+            for a in self.decoded("ack")
+            if (seq is None or a["seq"] == seq) and (status is None or a["status"] == status)
+        ]
 
     def wait_ack(self, seq: int, status: str, timeout: float = 15.0) -> dict:
         self.wait(lambda: self.acks(seq, status), timeout, f"no '{status}' ack for seq {seq}")
@@ -166,9 +184,23 @@ class Planner(Inbox):
 class Stack:
     """Emulator + bridge + planner client for one test, torn down in reverse order."""
 
-    def __init__(self, broker, lake, tmp_path: Path, home_node: int, bridge_args=(), serial=False, speedup=40.0,
-                 fleet=None, route=None, start_planner_online=True, telemetry_hz=10, before_bridge=None,
-                 wait_armed=True, max_speed=2.0):
+    def __init__(
+        self,
+        broker,
+        lake,
+        tmp_path: Path,
+        home_node: int,
+        bridge_args=(),
+        serial=False,
+        speedup=40.0,
+        fleet=None,
+        route=None,
+        start_planner_online=True,
+        telemetry_hz=10,
+        before_bridge=None,
+        wait_armed=True,
+        max_speed=2.0,
+    ):
         self.map, self.graph, self.map_path = lake
         self.broker = broker
         self.fleet = fleet or f"t{uuid.uuid4().hex[:8]}"
@@ -176,8 +208,12 @@ class Stack:
         self.emulator = Emulator(home, speedup=speedup, serial=serial, max_speed=max_speed)
         self.planner = Planner(broker, self.fleet)
         if start_planner_online:
-            self.planner.client.publish(messages.topic(self.fleet, None, "status"),
-                                        messages.encode("status", state="online"), qos=1, retain=True).wait_for_publish(5)
+            self.planner.client.publish(
+                messages.topic(self.fleet, None, "status"),
+                messages.encode("status", state="online"),
+                qos=1,
+                retain=True,
+            ).wait_for_publish(5)
         if before_bridge is not None:
             before_bridge(self.emulator)
         self.extra: list[subprocess.Popen] = []
@@ -187,13 +223,32 @@ class Stack:
         else:
             link = self.emulator.vehicle["serial"] if serial else self.emulator.tcp
         self.log_path = tmp_path / "bridge.log"
-        cmd = GUADAL + ["bridge", "--vehicle-id", "0", "--mavlink", link, "--broker", broker.url, "--map",
-                        str(self.map_path), "--fleet", self.fleet, "--arm", "--telemetry-hz", str(telemetry_hz),
-                        "--connect-timeout", "15", *bridge_args]
+        cmd = GUADAL + [
+            "bridge",
+            "--vehicle-id",
+            "0",
+            "--mavlink",
+            link,
+            "--broker",
+            broker.url,
+            "--map",
+            str(self.map_path),
+            "--fleet",
+            self.fleet,
+            "--arm",
+            "--telemetry-hz",
+            str(telemetry_hz),
+            "--connect-timeout",
+            "15",
+            *bridge_args,
+        ]
         self._log = open(self.log_path, "w")
         self.bridge = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, text=True)
-        self.planner.wait_status(lambda s: s["state"] == "online" and (s.get("armed") or not wait_armed), 20,
-                                 f"bridge not online and armed (log: {self.log()})")
+        self.planner.wait_status(
+            lambda s: s["state"] == "online" and (s.get("armed") or not wait_armed),
+            20,
+            f"bridge not online and armed (log: {self.log()})",
+        )
 
     def log(self) -> str:
         self._log.flush()
@@ -207,8 +262,6 @@ class Stack:
         for proc in self.extra:
             _stop(proc)
         self.emulator.close()
-
-
 
 
 class Probe(threading.Thread):
