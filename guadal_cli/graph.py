@@ -2,17 +2,20 @@
 
 Node ids are ``0..N-1`` over the water cells in row-major order, so they are stable for a given
 map and can be written to CSVs and compared across runs and levels. Attributes per node:
-``row, col, x, y, lat, lon``. Heavy queries (all distances from a node, nearest node) use
-numpy/scipy arrays beside the networkx graph so that 5,000-node maps stay fast.
+``row, col, x, y, lat, lon``.
+
+Everything is numpy arrays: the edges are one CSR matrix (neighbours, edge lengths, and
+scipy.sparse.csgraph for paths), so a million-node lake costs about 150 MB and no Python object
+per node or per edge. ``to_networkx()`` builds a networkx copy on demand, for users who want one.
 """
 
 from __future__ import annotations
 
-from functools import lru_cache
+from collections import OrderedDict
 
-import networkx as nx
 import numpy as np
 from scipy.sparse import csr_matrix
+from scipy.sparse import triu as sp_triu
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
@@ -52,34 +55,22 @@ class NavGraph:
             dst.append(b)
             w.append(np.hypot(self.x[a] - self.x[b], self.y[a] - self.y[b]))
         src_a, dst_a, w_a = np.concatenate(src), np.concatenate(dst), np.concatenate(w)
+        del src, dst, w
         self.adjacency = csr_matrix((w_a, (src_a, dst_a)), shape=(self.n_nodes, self.n_nodes))
-        self._neighbors = [
-            tuple(
-                int(v)
-                for v in self.adjacency.indices[self.adjacency.indptr[i] : self.adjacency.indptr[i + 1]]
-            )
-            for i in range(self.n_nodes)
-        ]
-        self._edge_length = {(int(a), int(b)): float(w) for a, b, w in zip(src_a, dst_a, w_a)}
+        del src_a, dst_a, w_a
+        self._indptr = self.adjacency.indptr
+        self._indices = self.adjacency.indices
+        self._lengths = self.adjacency.data
         self.n_components, self.component = connected_components(self.adjacency, directed=False)
         self._tree = cKDTree(self.xy)
+        self._attributes: dict[str, np.ndarray] = {}
+        # shortest-path trees (distances + predecessors, 12 bytes a node each), least recently
+        # used first; bounded in bytes so that a million-node lake keeps a few, a small one many
+        self._trees: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self._max_trees = int(min(256, max(4, self.PATH_CACHE_BYTES // max(12 * self.n_nodes, 1))))
 
-        self.graph = nx.Graph()
-        for i in range(self.n_nodes):
-            self.graph.add_node(
-                i,
-                row=int(self.rows[i]),
-                col=int(self.cols[i]),
-                x=float(self.x[i]),
-                y=float(self.y[i]),
-                lat=float(self.lat[i]),
-                lon=float(self.lon[i]),
-            )
-        upper = src_a < dst_a
-        self.graph.add_weighted_edges_from(
-            zip(src_a[upper].tolist(), dst_a[upper].tolist(), w_a[upper].tolist())
-        )
-        self._dist_cache = lru_cache(maxsize=256)(self._dijkstra_from)
+    #: memory the cache of shortest-path trees may use (one tree per recent source node)
+    PATH_CACHE_BYTES = 256 * 2**20
 
     # --- lookups -------------------------------------------------------------------------
     def node_at(self, row: int, col: int) -> int | None:
@@ -98,22 +89,40 @@ class NavGraph:
         return np.asarray(self._tree.query_ball_point(self.xy[node], radius_m + 1e-9), dtype=int)
 
     def neighbors(self, node: int) -> tuple[int, ...]:
-        return self._neighbors[node]
+        return tuple(self._indices[self._indptr[node] : self._indptr[node + 1]].tolist())
 
     def edge_length(self, a: int, b: int) -> float:
         """Metres between two neighbouring nodes (KeyError if they are not neighbours)."""
-        return self._edge_length[(a, b)]
+        k = self._edge_index(a, b)
+        if k < 0:
+            raise KeyError((a, b))
+        return float(self._lengths[k])
+
+    def _edge_index(self, a: int, b: int) -> int:
+        """Position of edge a-b in the CSR arrays, -1 when a and b are not neighbours."""
+        lo, hi = int(self._indptr[a]), int(self._indptr[a + 1])
+        hits = np.flatnonzero(self._indices[lo:hi] == b)
+        return lo + int(hits[0]) if len(hits) else -1
 
     # --- paths ---------------------------------------------------------------------------
-    def _dijkstra_from(self, source: int):
+    def _tree_from(self, source: int) -> tuple[np.ndarray, np.ndarray]:
+        """Distances and predecessors from ``source`` (cached, read-only)."""
+        tree = self._trees.get(source)
+        if tree is not None:
+            self._trees.move_to_end(source)
+            return tree
         dist, pred = dijkstra(self.adjacency, directed=False, indices=source, return_predecessors=True)
+        pred = pred.astype(np.int32, copy=False)
         dist.setflags(write=False)
         pred.setflags(write=False)
+        self._trees[source] = (dist, pred)
+        while len(self._trees) > self._max_trees:
+            self._trees.popitem(last=False)
         return dist, pred
 
     def distances_from(self, source: int) -> np.ndarray:
         """Water-path distance in metres from ``source`` to every node (inf if unreachable)."""
-        return self._dist_cache(int(source))[0]
+        return self._tree_from(int(source))[0]
 
     def distance(self, a: int, b: int) -> float:
         return float(self.distances_from(a)[b])
@@ -126,7 +135,7 @@ class NavGraph:
         """
         if a == b:
             return [a]
-        if not avoid and (a, b) in self._edge_length:
+        if not avoid and self._edge_index(a, b) >= 0:
             return [a, b]  # neighbours: one edge is always the shortest way
         if avoid:
             keep = np.ones(self.n_nodes, dtype=bool)
@@ -135,7 +144,7 @@ class NavGraph:
             adj.eliminate_zeros()  # csgraph treats stored zeros as free edges
             dist, pred = dijkstra(adj, directed=False, indices=a, return_predecessors=True)
         else:
-            dist, pred = self._dist_cache(int(a))
+            dist, pred = self._tree_from(int(a))
         if not np.isfinite(dist[b]):
             return []
         path = [int(b)]
@@ -148,7 +157,7 @@ class NavGraph:
 
     # --- attributes ----------------------------------------------------------------------
     def fill_graph_attribute(self, name: str, values) -> None:
-        """Store one value per node as a node attribute (an array of N, or a full grid)."""
+        """Store one value per node under ``name`` (an array of N, or a full grid)."""
         values = np.asarray(values)
         if values.shape == self.map.mask.shape:
             values = values[self.rows, self.cols]
@@ -156,10 +165,36 @@ class NavGraph:
             raise GuadalError(
                 f"attribute '{name}' needs {self.n_nodes} values or a {self.map.mask.shape} grid, got {values.shape}."
             )
-        nx.set_node_attributes(self.graph, {i: values[i].item() for i in range(self.n_nodes)}, name)
+        values = values.copy()
+        values.setflags(write=False)
+        self._attributes[name] = values
 
     def node_attribute(self, name: str) -> np.ndarray:
-        return np.array([self.graph.nodes[i][name] for i in range(self.n_nodes)])
+        return self._attributes[name]
+
+    def to_networkx(self):
+        """A networkx copy (node attributes included, edges weighted in metres), built on request.
+
+        Nothing in guadal uses it: it is for users who want networkx's algorithms. It costs
+        about 1 KB a node, so build it on small maps.
+        """
+        import networkx as nx
+
+        graph = nx.Graph()
+        base = {
+            "row": self.rows,
+            "col": self.cols,
+            "x": self.x,
+            "y": self.y,
+            "lat": self.lat,
+            "lon": self.lon,
+        }
+        columns = {**base, **self._attributes}
+        values = {name: array.tolist() for name, array in columns.items()}
+        graph.add_nodes_from((i, {name: v[i] for name, v in values.items()}) for i in range(self.n_nodes))
+        upper = sp_triu(self.adjacency, k=1).tocoo()
+        graph.add_weighted_edges_from(zip(upper.row.tolist(), upper.col.tolist(), upper.data.tolist()))
+        return graph
 
     def to_grid(self, values, fill=np.nan) -> np.ndarray:
         """Per-node values back on the map's grid (land = ``fill``), for plots and files."""

@@ -1,5 +1,6 @@
 import math
 
+import networkx as nx
 import numpy as np
 import pytest
 
@@ -28,7 +29,34 @@ def test_eight_connected_with_metric_lengths():
     assert len(g.neighbors(centre)) == 8
     assert g.edge_length(centre, g.node_at(0, 1)) == pytest.approx(5.0)
     assert g.edge_length(centre, g.node_at(0, 0)) == pytest.approx(5.0 * math.sqrt(2))
-    assert g.graph.nodes[centre]["lat"] == pytest.approx(37.0)
+    with pytest.raises(KeyError):
+        g.edge_length(g.node_at(0, 0), g.node_at(2, 2))  # not neighbours
+
+
+def test_to_networkx_is_the_same_graph_with_its_attributes():
+    g = NavGraph(l_lake())
+    g.fill_graph_attribute("depth", np.arange(g.n_nodes, dtype=float))
+    nxg = g.to_networkx()
+    assert nxg.number_of_nodes() == g.n_nodes
+    assert nxg.number_of_edges() == g.adjacency.nnz // 2
+    corner = g.node_at(4, 0)
+    assert set(nxg.neighbors(corner)) == set(g.neighbors(corner))
+    assert nxg.nodes[corner]["depth"] == float(corner)
+    assert nxg.nodes[corner]["row"] == 4 and nxg.nodes[corner]["lat"] == pytest.approx(g.lat[corner])
+    a, b = g.node_at(0, 0), g.node_at(4, 4)
+    assert nx.shortest_path_length(nxg, a, b, weight="weight") == pytest.approx(g.distance(a, b))
+
+
+def test_path_cache_is_bounded_in_memory(monkeypatch):
+    monkeypatch.setattr(NavGraph, "PATH_CACHE_BYTES", 0)  # as on a lake too big for more than a few
+    g = NavGraph(
+        Map(mask=np.ones((6, 6), bool), cell_size_m=5.0, reference={"row": 0, "col": 0, "lat": 37, "lon": -6})
+    )
+    first = g.distances_from(0).copy()
+    for source in range(g.n_nodes):
+        g.distances_from(source)
+    assert len(g._trees) == 4  # the floor: the most recent sources only
+    assert np.array_equal(g.distances_from(0), first)  # evicted trees are recomputed identically
 
 
 def test_shortest_path_stays_on_water_around_the_corner():
