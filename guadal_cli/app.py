@@ -13,6 +13,7 @@ from .commands import plugins as plugins_cmd
 from .commands import report as report_cmd
 from .commands import sitl as sitl_cmd
 from .commands import stack as stack_cmd
+from .commands import sweep as sweep_cmd
 
 app = typer.Typer(
     name="guadal",
@@ -46,6 +47,7 @@ bridge_cmd.register(app)
 stack_cmd.register(app)
 discretize_cmd.register(app)
 report_cmd.register(app)
+app.add_typer(sweep_cmd.app, name="sweep")
 
 
 def main() -> None:

@@ -255,9 +255,14 @@ def prepare(path: str | Path, seed: int | None = None) -> Prepared:
     data = read_mission_file(path)
     if seed is not None:
         data["seed"] = seed
-    mission = parse_mission(data, path)
-    base_dir = path.resolve().parent
-    where = f"{path}: "
+    return prepare_dict(data, path.resolve().parent, path)
+
+
+def resolve_plugins(mission: Mission, where: str = "") -> tuple:
+    """The plugin classes and validated configs a mission names, with its mode checked.
+
+    Returns ``(env_cls, env_cfg, alg_cls, alg_cfg, mode, backend_cls, backend_cfg)``.
+    """
     try:
         env_cls, env_cfg = plugins.build_config("environment", mission.environment.as_dict(), "environment")
         alg_cls, alg_cfg = plugins.build_config("algorithm", mission.algorithm.as_dict(), "algorithm")
@@ -279,16 +284,34 @@ def prepare(path: str | Path, seed: int | None = None) -> Prepared:
             f"environment, which '{mission.environment.type}' does not provide "
             f"(it provides: {', '.join(sorted(env_cls.provides)) or 'nothing'})."
         )
+    return env_cls, env_cfg, alg_cls, alg_cfg, mode, backend_cls, backend_cfg
+
+
+def mission_map_path(mission: Mission, base_dir: Path) -> Path:
+    """The map file a mission names, relative paths taken from the mission's folder."""
     map_path = Path(mission.map.path)
-    if not map_path.is_absolute():
-        map_path = base_dir / map_path
+    return map_path if map_path.is_absolute() else Path(base_dir) / map_path
+
+
+def prepare_dict(data: dict, base_dir: str | Path, source: str | Path = "mission") -> Prepared:
+    """Validate and resolve a mission given as a mapping (what a mission file holds).
+
+    Relative paths inside it are taken from ``base_dir``; ``source`` names the mission in error
+    sentences and in the run manifest. A sweep builds each of its missions this way, and the
+    run is the same, byte for byte, as ``guadal run`` of a file holding ``data``.
+    """
+    path = Path(source)
+    mission = parse_mission(data, path)
+    base_dir = Path(base_dir).resolve()
+    where = f"{path}: "
+    env_cls, env_cfg, alg_cls, alg_cfg, mode, backend_cls, backend_cfg = resolve_plugins(mission, where)
     try:
-        map_ = load_map(map_path)
+        map_ = load_map(mission_map_path(mission, base_dir))
     except GuadalError as exc:
         raise GuadalError(f"{where}map.path: {exc}") from exc
     graph = NavGraph(map_)
     initial_nodes = resolve_initial_nodes(mission.fleet, graph, where)
-    env_seed, planner_seed = (int(s) for s in np.random.SeedSequence(mission.seed).generate_state(2))
+    env_seed, planner_seed = mission_seeds(mission.seed)
     try:
         environment = env_cls(env_cfg, graph, base_dir=base_dir)
         environment.reset(env_seed)
@@ -312,3 +335,9 @@ def prepare(path: str | Path, seed: int | None = None) -> Prepared:
         environment_seed=env_seed,
         planner_seed=planner_seed,
     )
+
+
+def mission_seeds(seed: int) -> tuple[int, int]:
+    """The environment's and the planner's seeds, both drawn from the mission's one seed."""
+    env_seed, planner_seed = (int(s) for s in np.random.SeedSequence(seed).generate_state(2))
+    return env_seed, planner_seed

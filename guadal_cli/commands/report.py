@@ -21,11 +21,12 @@ def register(app: typer.Typer) -> None:
             "-o",
             help="Folder for the HTML page, figures, animations and geo files; without it only the tables are printed.",
         ),
-        group_by: str = typer.Option(
-            "algorithm.type",
+        group_by: str | None = typer.Option(
+            None,
             "--group-by",
             "-g",
-            help="Comma-separated dotted fields of the resolved mission to group by.",
+            help="Comma-separated dotted fields of the resolved mission to group by "
+            "(default: algorithm.type, or a sweep directory's axes).",
         ),
         x_axis: str = typer.Option(
             "distance",
@@ -54,13 +55,14 @@ def register(app: typer.Typer) -> None:
         """Compare runs: per-run and per-group tables; with --output also figures, animations, GeoJSON/KML, ground-station plans and one HTML page."""
         from ..errors import GuadalError
         from ..report import tables
-        from ..report.build import Options, build, write
+        from ..report.build import DEFAULT_GROUP_BY, Options, build, write
         from ..report.runs import find_runs
+        from ..sweep.summary import sweep_runs
 
         if sum((as_csv, as_json, as_markdown)) > 1:
             raise fail("choose one of --csv, --json and --markdown.")
         options = Options(
-            group_by=[f.strip() for f in group_by.split(",") if f.strip()],
+            group_by=[f.strip() for f in (group_by or "").split(",") if f.strip()],
             x_axis=x_axis,
             metrics=[m.strip() for m in metrics.split(",") if m.strip()] if metrics else None,
             animate=None if animate.lower() == "none" else animate.lower(),
@@ -68,7 +70,10 @@ def register(app: typer.Typer) -> None:
         )
         quiet = as_csv or as_json or as_markdown
         try:
-            found = find_runs(runs)
+            swept = sweep_runs(runs)  # a sweep directory: its runs, grouped by its axes
+            found = swept[0] if swept else find_runs(runs)
+            if group_by is None:
+                options.group_by = (swept[1] if swept else None) or list(DEFAULT_GROUP_BY)
             result = build(found, options)
             if output is not None:
                 with (

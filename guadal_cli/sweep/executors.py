@@ -1,0 +1,124 @@
+"""Where a sweep's tasks run: local processes, or a Dask distributed cluster.
+
+Both offer the same four calls to the engine: ``slots`` (how many tasks to keep in flight),
+``submit(task)``, ``wait(handles, timeout)`` -> finished ``(handle, result)`` pairs, and
+``stop(handles)`` for Ctrl-C. A worker that dies, or a task that raises, gives a *failed* result for
+that task; the executor stays usable for the others.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
+from concurrent.futures import wait as wait_futures
+from concurrent.futures.process import BrokenProcessPool
+
+from ..errors import GuadalError
+from .worker import run_combination
+
+#: environment of local workers: one BLAS/OpenMP thread each, set before numpy is imported
+_ONE_THREAD = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+
+
+def _init_local_worker() -> None:
+    # Ctrl-C reaches the whole process group; only the sweep decides how its workers stop
+    # (with SIGTERM, which a running mission turns into an 'interrupted' run directory).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    os.environ.update(_ONE_THREAD)
+
+
+def _died(exc: BaseException) -> dict:
+    return {"status": "failed", "error": f"the worker running it died ({type(exc).__name__}: {exc})"}
+
+
+class LocalExecutor:
+    """Worker processes on this machine (started fresh, not forked: safe beside threads)."""
+
+    def __init__(self, workers: int):
+        self.slots = workers
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        import multiprocessing
+
+        return ProcessPoolExecutor(
+            self.slots, mp_context=multiprocessing.get_context("spawn"), initializer=_init_local_worker
+        )
+
+    def submit(self, task: dict):
+        try:
+            return self._pool.submit(run_combination, task)
+        except BrokenProcessPool:  # a worker died earlier: the others finished; start afresh
+            self._pool.shutdown(wait=False)
+            self._pool = self._new_pool()
+            return self._pool.submit(run_combination, task)
+
+    def wait(self, handles: list, timeout: float) -> list[tuple]:
+        done, _ = wait_futures(handles, timeout=timeout, return_when=FIRST_COMPLETED)
+        out = []
+        for future in done:
+            try:
+                out.append((future, future.result()))
+            except BrokenProcessPool as exc:
+                out.append((future, _died(exc)))
+        return out
+
+    def stop(self, handles: list) -> None:
+        # SIGTERM: a running mission writes its run directory as 'interrupted' and the worker ends
+        for process in list(getattr(self._pool, "_processes", {}).values()):
+            if process.is_alive():
+                process.terminate()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True)
+
+
+class DaskExecutor:
+    """Tasks on an existing Dask distributed cluster (``guadal[dask]``); one mission per task."""
+
+    def __init__(self, address: str, connect_timeout: float = 10.0):
+        try:
+            from distributed import Client
+        except ImportError as exc:
+            raise GuadalError(
+                "running a sweep on a Dask cluster needs the dask extra: pip install 'guadal[dask]'."
+            ) from exc
+        try:
+            self.client = Client(address, timeout=connect_timeout, set_as_default=False)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise GuadalError(f"cannot reach the Dask scheduler at '{address}' ({exc}).") from exc
+        self.address = address
+
+    @property
+    def slots(self) -> int:
+        """Threads the cluster has now (workers may join or leave during a sweep), at least 1."""
+        return max(1, sum(self.client.nthreads().values()))
+
+    def submit(self, task: dict):
+        key = f"guadal-sweep-{task['id']}-attempt{task['attempt']}-{os.getpid()}"
+        return self.client.submit(run_combination, task, key=key, pure=False)
+
+    def wait(self, handles: list, timeout: float) -> list[tuple]:
+        from distributed import wait
+
+        try:
+            done, _ = wait(handles, timeout=timeout, return_when=FIRST_COMPLETED)
+        except TimeoutError:
+            return []
+        out = []
+        for future in done:
+            try:
+                out.append((future, future.result()))
+            except Exception as exc:  # KilledWorker, lost connection, a task that could not even start
+                out.append((future, _died(exc)))
+        return out
+
+    def stop(self, handles: list) -> None:
+        # running tasks finish on their workers (Dask cannot interrupt them); queued ones are dropped
+        self.client.cancel(handles)
+        self.close()
+
+    def close(self) -> None:
+        self.client.close()
