@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
@@ -101,12 +102,10 @@ class DaskExecutor:
         return self.client.submit(run_combination, task, key=key, pure=False)
 
     def wait(self, handles: list, timeout: float) -> list[tuple]:
-        from distributed import wait
-
-        try:
-            done, _ = wait(handles, timeout=timeout, return_when=FIRST_COMPLETED)
-        except TimeoutError:
-            return []
+        # polled: distributed's wait() wants a default client, and a sweep sets none (it may be a library call)
+        deadline = time.monotonic() + timeout
+        while not (done := [f for f in handles if f.done()]) and time.monotonic() < deadline:
+            time.sleep(0.02)
         out = []
         for future in done:
             try:
