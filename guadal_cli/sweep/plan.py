@@ -88,11 +88,13 @@ def _resolve_sections(mission, where: str):
     return env_cls, env_cfg, resolved
 
 
-def _load_graph(map_path: Path, where: str):
+def _load_graph(mission, base_dir: Path, where: str):
     from ..graph import NavGraph
     from ..maps.format import load_map
+    from ..mission import mission_map_path
     from ..records import file_sha256
 
+    map_path = mission_map_path(mission, base_dir)
     try:
         map_ = load_map(map_path)
     except GuadalError as exc:
@@ -115,7 +117,7 @@ def plan_sweep(sweep: Sweep) -> Plan:
     from pydantic import ValidationError
 
     from ..errors import explain_validation_error
-    from ..mission import Mission, mission_map_path, resolve_initial_nodes
+    from ..mission import Mission, resolve_initial_nodes
 
     plugins_once, maps_once, starts_once, envs_once = _Once(), _Once(), _Once(), _Once()
     combinations: list[Combination] = []
@@ -139,14 +141,12 @@ def plan_sweep(sweep: Sweep) -> Plan:
         env_cls, env_cfg, resolved_sections = plugins_once(
             _canonical(sections), _resolve_sections, mission, where
         )
-        map_path = mission_map_path(mission, sweep.base_dir).resolve()
-        graph, map_sha = maps_once(str(map_path), _load_graph, map_path, where)
+        map_key = mission.map.path  # as written: one base folder for all, so one name is one file
+        graph, map_sha = maps_once(map_key, _load_graph, mission, sweep.base_dir, where)
         fleet = mission.fleet.model_dump(mode="json")
-        nodes = starts_once(
-            (str(map_path), _canonical(fleet)), resolve_initial_nodes, mission.fleet, graph, where
-        )
+        nodes = starts_once((map_key, _canonical(fleet)), resolve_initial_nodes, mission.fleet, graph, where)
         envs_once(
-            (str(map_path), _canonical(resolved_sections["environment"])),
+            (map_key, _canonical(resolved_sections["environment"])),
             _build_environment,
             *(env_cls, env_cfg, graph, sweep.base_dir, mission.seed, where),
         )

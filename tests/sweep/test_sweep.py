@@ -144,7 +144,7 @@ def test_validate_counts_every_combination_and_names_the_bad_one(tmp_path):
 
 
 def test_the_shipped_example_sweep_holds_the_papers_comparison(tmp_path):
-    proc = run_cli("sweep", "validate", ROOT / "missions" / "lake_algorithms.sweep.yaml", "--json")
+    proc = run_cli("sweep", "validate", ROOT / "examples" / "lake_algorithms.sweep.yaml", "--json")
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["missions"] == 4 * 2 * 10 and summary["levels"] == "sim"
