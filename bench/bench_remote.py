@@ -20,6 +20,7 @@ import csv
 import datetime as dt
 import os
 import platform
+import socket
 import statistics
 import sys
 import tempfile
@@ -33,7 +34,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from guadal_cli.fleet.remote import RemoteFleet, SitlConfig, no_delay  # noqa: E402
+from guadal_cli.fleet.remote import RemoteFleet, SitlConfig  # noqa: E402
 from guadal_cli.graph import NavGraph  # noqa: E402
 from guadal_cli.maps.format import load_map  # noqa: E402
 from guadal_cli.mission import auto_positions, prepare  # noqa: E402
@@ -67,7 +68,9 @@ def echo_round_trips(port: int, n: int, cycles: int) -> list[float]:
         subscribed = threading.Event()
         client.on_message = handler
         client.on_subscribe = lambda *a, e=subscribed: e.set()
-        client.on_connect = lambda c, *a: no_delay(c)  # the same socket option RemoteFleet sets
+        client.on_connect = lambda c, *a: c.socket().setsockopt(  # the socket option guadal's channel sets
+            socket.IPPROTO_TCP, socket.TCP_NODELAY, 1
+        )
         client.connect("127.0.0.1", port)
         client.loop_start()
         client.subscribe(topic, qos=1)
@@ -93,13 +96,13 @@ def echo_round_trips(port: int, n: int, cycles: int) -> list[float]:
 def goto_cycles(fleet: RemoteFleet, cycles: int) -> tuple[list[float], list[float]]:
     """Seconds until every boat acknowledged (``accepted``) and until every boat ``reached``."""
     accepted, reached = [], []
+    owner = fleet._owner
     for c in range(cycles + 3):
         t0 = time.perf_counter()
-        for v in fleet.vehicles:
-            fleet._goto(v, v.node, count_distance=False)
-        fleet._wait(lambda: all(v.goto.status != "sent" for v in fleet.vehicles), 30)
+        owner.call(lambda: [fleet._goto(v, v.node, count_distance=False) for v in fleet.vehicles])
+        owner.wait(lambda: all(v.goto.status != "sent" for v in fleet.vehicles), 30)
         t1 = time.perf_counter()
-        fleet._wait(lambda: all(not v.goto.open for v in fleet.vehicles), 30)
+        owner.wait(lambda: all(not v.goto.open for v in fleet.vehicles), 30)
         if c >= 3:
             accepted.append(t1 - t0)
             reached.append(time.perf_counter() - t0)
@@ -117,7 +120,7 @@ def decision_cycle(counts: list[int], cycles: int, speedup: float) -> list[dict]
             map_path=LAKE, vehicles=n, homes=homes, speedup=speedup, broker_kind="mosquitto", timeout=180
         )
         launch_s = time.perf_counter() - t0
-        fleet = RemoteFleet(graph, n, 1e9, None, SitlConfig(level="sitl", port=stack.broker_port))
+        fleet = RemoteFleet(graph, n, 1e9, None, SitlConfig(**stack.planner_backend()))
         try:
             fleet.reset(start)
             accepted, cycle = goto_cycles(fleet, cycles)

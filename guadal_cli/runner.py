@@ -270,6 +270,9 @@ class MissionRunner:
             self._record(fleet, first)
             self._mission_loop(fleet)
             status = "complete"
+            if fleet.lost and len(fleet.lost) == self.n:  # no vehicle left: not a finished mission
+                status = "aborted"
+                self.stop_reason = "every vehicle was lost: " + " ".join(fleet.lost.values())
         except KeyboardInterrupt:
             status, error = "interrupted", "stopped by the user (interrupt or terminate signal)"
             raise

@@ -5,12 +5,18 @@ What the paper packaged as containers: ``guadal stack up`` (or a mission with
 ready (the emulator's ready line, every bridge's retained ``online`` status — never a fixed
 sleep), and records them in a state file; ``guadal stack down`` stops them all, SIGTERM first
 and SIGKILL after a grace period.
+
+Every stack gets fresh broker users, an ACL and a fleet key (:mod:`guadal_cli.channel.credentials`)
+in ``STATE_DIR/secrets`` (0700, files 0600), removed by ``down``. Each process kind has one
+start function (:meth:`Stack.start_broker`, :meth:`Stack.start_emulator`,
+:meth:`Stack.start_bridge`), so another autopilot (ArduPilot's own SITL) plugs in beside them.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import queue
 import shutil
 import signal
 import subprocess
@@ -22,9 +28,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pydantic import SecretStr
+
+from .channel import protocol as msg
+from .channel.broker import child_options, start_broker
+from .channel.client import Channel, Endpoint
+from .channel.credentials import FleetSecrets, private_dir, vehicle_user
 from .errors import GuadalError
-from .fleet import messages as msg
-from .fleet.broker import child_options, start_broker
 
 STATE_FILE = "stack.json"
 
@@ -56,6 +66,7 @@ class StackProcess:
     pid: int
     log: str
     started: str | None = None
+    cmd: list[str] = field(default_factory=list)
     popen: subprocess.Popen | None = field(default=None, repr=False, compare=False)
 
     def alive(self) -> bool:
@@ -150,6 +161,35 @@ class Stack:
     def broker_url(self) -> str:
         return f"mqtt://{self.broker_host}:{self.broker_port}"
 
+    @property
+    def secure(self) -> bool:
+        return self.info.get("secure", True)
+
+    @property
+    def secrets(self) -> FleetSecrets:
+        return FleetSecrets(self.state_dir / "secrets")
+
+    def planner_backend(self) -> dict:
+        """The mission ``backend:`` settings that reach this stack as its planner user."""
+        settings = {
+            "level": "sitl",
+            "host": self.broker_host,
+            "port": self.broker_port,
+            "fleet": self.info["fleet"],
+        }
+        if self.secure:
+            settings["username"] = "planner"
+            settings["password_file"] = str(self.secrets.user_password_file("planner"))
+            settings["key_file"] = str(self.secrets.key_file)
+        return settings
+
+    def endpoint(self, user: str) -> Endpoint:
+        """How ``user`` (planner, operator, watcher, vehicle-N) logs in to this stack's broker."""
+        if not self.secure:
+            return Endpoint(self.broker_host, self.broker_port)
+        password = self.secrets.user_password_file(user).read_text().strip()
+        return Endpoint(self.broker_host, self.broker_port, username=user, password=SecretStr(password))
+
     def pids(self) -> list[int]:
         return [p.pid for p in self.processes]
 
@@ -171,12 +211,16 @@ class Stack:
         timeout: float = 60.0,
         state_dir: Path | None = None,
         detach: bool = False,
+        secure: bool = True,
     ) -> Stack:
-        """Start broker, emulator and bridges; return when every bridge is online."""
+        """Start broker, emulator and bridges; return when every bridge is online.
+
+        ``secure=False`` (benchmarks only: the baseline the security's cost is measured against)
+        starts an anonymous broker and bridges that neither sign nor check signatures."""
         if len(homes) != vehicles:
             raise GuadalError(f"the stack needs one home per vehicle ({vehicles}), got {len(homes)}.")
         own = state_dir is None
-        state_dir = Path(tempfile.mkdtemp(prefix="guadal-stack-")) if own else Path(state_dir)
+        state_dir = Path(tempfile.mkdtemp(prefix="guadal-stack-")) if own else private_dir(Path(state_dir))
         logs = state_dir / "logs"
         logs.mkdir(parents=True, exist_ok=True)
         info = {
@@ -185,6 +229,7 @@ class Stack:
             "vehicles": vehicles,
             "speedup": speedup,
             "homes": [list(h) for h in homes],
+            "secure": secure,
         }
         stack = cls(state_dir, info, [], own_dir=own)
         try:
@@ -210,6 +255,7 @@ class Stack:
     def _spawn(self, name: str, cmd: list[str], detach: bool) -> StackProcess:
         log = self.state_dir / "logs" / f"{name}.log"
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        existing = next((p for p in self.processes if p.name == name), None)
         with open(log, "wb") as out:  # fresh: the ready line read later must be this run's
             popen = subprocess.Popen(
                 cmd,
@@ -219,9 +265,20 @@ class Stack:
                 env=env,
                 **child_options(detach),
             )
-        proc = StackProcess(name, popen.pid, str(log), _start_ticks(popen.pid), popen)
-        self.processes.append(proc)
+        proc = StackProcess(name, popen.pid, str(log), _start_ticks(popen.pid), list(cmd), popen)
+        if existing is not None:
+            self.processes[self.processes.index(existing)] = proc
+        else:
+            self.processes.append(proc)
         return proc
+
+    def restart(self, name: str, grace: float = 5.0) -> StackProcess:
+        """Stop one process of the stack and start it again with the same command (same ports)."""
+        proc = next((p for p in self.processes if p.name == name), None)
+        if proc is None or not proc.cmd:
+            raise GuadalError(f"the stack has no restartable process '{name}'.")
+        stop_all([proc], grace)
+        return self._spawn(name, proc.cmd, detach=False)
 
     def _start(
         self,
@@ -239,15 +296,38 @@ class Stack:
         detach,
     ) -> None:
         deadline = time.monotonic() + timeout
+        if self.secure:
+            FleetSecrets.generate(self.state_dir / "secrets", fleet, vehicles)
+        self.start_broker(broker_kind, broker_port, min(timeout, 15.0), detach)
+        self.info["planner"] = self.planner_backend()
+        endpoints = self.start_emulator(homes, speedup, emulator_args, deadline, detach)
+        watcher = StatusWatcher(
+            self.endpoint("watcher"),
+            fleet,
+            vehicles,
+            self.secrets.key_file.read_bytes().strip() if self.secure else None,
+        )
+        try:
+            for i, endpoint in enumerate(endpoints):
+                self.start_bridge(i, endpoint, fleet, failsafe_timeout, bridge_args, detach)
+            watcher.wait_all_online(deadline, self.processes)
+        finally:
+            watcher.close()
+
+    def start_broker(self, kind: str, port: int, timeout: float, detach: bool) -> None:
+        """The broker, with this stack's users and ACL (no anonymous client gets in)."""
         broker = start_broker(
-            broker_kind,
-            port=broker_port,
+            kind,
+            port=port,
             workdir=self.state_dir / "logs",
-            timeout=min(timeout, 15.0),
+            timeout=timeout,
             detach=detach,
+            secrets=self.secrets if self.secure else None,
         )
         self.processes.append(
-            StackProcess("broker", broker.pid, str(broker.log_path), _start_ticks(broker.pid), broker.process)
+            StackProcess(
+                "broker", broker.pid, str(broker.log_path), _start_ticks(broker.pid), [], broker.process
+            )
         )
         self.info["broker"] = {
             "kind": broker.kind,
@@ -256,12 +336,14 @@ class Stack:
             "url": broker.url,
         }
 
+    def start_emulator(self, homes, speedup, emulator_args, deadline: float, detach: bool) -> list[str]:
+        """The MAVLink boat emulator; returns one pymavlink connection string per boat."""
         fmt = lambda h: f"{h[0]:.8f},{h[1]:.8f}"  # noqa: E731
         emulator = self._spawn(
             "emulator",
             _emulator(
                 "--vehicles",
-                str(vehicles),
+                str(len(homes)),
                 "--home",
                 fmt(homes[0]),
                 "--homes",
@@ -275,36 +357,45 @@ class Stack:
             detach,
         )
         ready = _wait_ready_line(emulator, deadline)
-        endpoints = mavlink_endpoints(ready, vehicles)
+        endpoints = mavlink_endpoints(ready, len(homes))
         self.info["emulator"] = {"ready": ready, "mavlink": endpoints}
+        return endpoints
 
-        watcher = StatusWatcher(broker.host, broker.port, fleet, vehicles)
-        try:
-            for i, endpoint in enumerate(endpoints):
-                self._spawn(
-                    f"bridge-{i}",
-                    _guadal(
-                        "bridge",
-                        "--vehicle-id",
-                        str(i),
-                        "--mavlink",
-                        endpoint,
-                        "--broker",
-                        broker.url,
-                        "--map",
-                        self.info["map"],
-                        "--fleet",
-                        fleet,
-                        "--arm",
-                        "--failsafe-timeout",
-                        f"{failsafe_timeout:g}",
-                        *bridge_args,
-                    ),
-                    detach,
-                )
-            watcher.wait_all_online(deadline, self.processes)
-        finally:
-            watcher.close()
+    def start_bridge(
+        self, vehicle: int, mavlink: str, fleet: str, failsafe_timeout: float, bridge_args, detach
+    ):
+        """One bridge, logged in as ``vehicle-N`` with its password file and the fleet key."""
+        user = vehicle_user(vehicle)
+        login = [
+            "--broker",
+            f"mqtt://{user}@{self.broker_host}:{self.broker_port}",
+            "--password-file",
+            str(self.secrets.user_password_file(user)),
+            "--key-file",
+            str(self.secrets.key_file),
+        ]
+        if not self.secure:
+            login = ["--broker", self.broker_url]
+        return self._spawn(
+            f"bridge-{vehicle}",
+            _guadal(
+                "bridge",
+                "--vehicle-id",
+                str(vehicle),
+                "--mavlink",
+                mavlink,
+                *login,
+                "--map",
+                self.info["map"],
+                "--fleet",
+                fleet,
+                "--arm",
+                "--failsafe-timeout",
+                f"{failsafe_timeout:g}",
+                *bridge_args,
+            ),
+            detach,
+        )
 
     # --- state file ------------------------------------------------------------------------
     def save(self) -> Path:
@@ -312,7 +403,8 @@ class Stack:
         data = {
             **self.info,
             "processes": [
-                {"name": p.name, "pid": p.pid, "log": p.log, "started": p.started} for p in self.processes
+                {"name": p.name, "pid": p.pid, "log": p.log, "started": p.started, "cmd": p.cmd}
+                for p in self.processes
             ],
         }
         path.write_text(json.dumps(data, indent=2))
@@ -347,6 +439,7 @@ class Stack:
         state = self.state_dir / STATE_FILE
         if state.exists():
             state.unlink()
+        shutil.rmtree(self.state_dir / "secrets", ignore_errors=True)
         if self._own_dir:
             shutil.rmtree(self.state_dir, ignore_errors=True)
 
@@ -407,28 +500,33 @@ def mavlink_endpoints(ready: dict, vehicles: int) -> list[str]:
 class StatusWatcher:
     """Subscribes to every vehicle's retained status, to know when all bridges are online."""
 
-    def __init__(self, host: str, port: int, fleet: str, vehicles: int):
-        import paho.mqtt.client as mqtt
-
+    def __init__(self, endpoint: Endpoint, fleet: str, vehicles: int, key: bytes | None = None):
         self.vehicles = vehicles
         self.states: dict[int, str] = {}
         self._cond = threading.Condition()
-        self._client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"guadal-stack-{os.getpid()}")
-        self._client.on_connect = lambda c, *a: c.subscribe(f"{fleet}/vehicle/+/status", qos=1)
-        self._client.on_message = self._on_message
-        self._fleet = fleet
-        self._client.connect(host, port, keepalive=10)
-        self._client.loop_start()
+        self._events: queue.Queue = queue.Queue()
+        self._channel = Channel(
+            endpoint,
+            fleet=fleet,
+            client_id=f"guadal-stack-{os.getpid()}",
+            inbox=self._events,
+            subscriptions=[(f"{fleet}/vehicle/+/status", 1)],
+            codec=msg.Codec(key),
+        )
+        self._channel.start()
+        self._reader = threading.Thread(target=self._read, name="guadal-stack-watcher", daemon=True)
+        self._reader.start()
 
-    def _on_message(self, client, userdata, message) -> None:
-        try:
-            vid, _ = msg.parse_topic(self._fleet, message.topic)
-            state = msg.decode(message.payload, {"status"})["state"]
-        except msg.ProtocolError:
-            return
-        with self._cond:
-            self.states[vid] = state
-            self._cond.notify_all()
+    def _read(self) -> None:
+        """The one loop that changes :attr:`states`."""
+        while True:
+            event = self._events.get()
+            if event is None:
+                return
+            if event[0] == "message" and event[2] == "status" and event[1] is not None:
+                with self._cond:
+                    self.states[event[1]] = event[3]["state"]
+                    self._cond.notify_all()
 
     def wait_all_online(self, deadline: float, processes: list[StackProcess]) -> None:
         def missing():
@@ -452,8 +550,8 @@ class StatusWatcher:
                 self._cond.wait(min(left, 0.2))
 
     def close(self) -> None:
-        self._client.disconnect()
-        self._client.loop_stop()
+        self._channel.close()
+        self._events.put(None)
 
 
 def stack_up(

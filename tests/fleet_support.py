@@ -13,7 +13,13 @@ class Inbox:
     """A connected paho client whose received messages can be waited on (no sleeps)."""
 
     def __init__(
-        self, port: int, host: str = "127.0.0.1", client_id: str = "", keepalive: int = 60, will=None
+        self,
+        port: int,
+        host: str = "127.0.0.1",
+        client_id: str = "",
+        keepalive: int = 60,
+        will=None,
+        login: tuple[str, str] | None = None,
     ):
         self.messages: list[mqtt.MQTTMessage] = []
         self._cond = threading.Condition()
@@ -22,6 +28,8 @@ class Inbox:
         self.client.on_connect = lambda *a: self._notify()
         if will:
             self.client.will_set(*will)
+        if login:
+            self.client.username_pw_set(*login)
         self.client.connect(host, port, keepalive=keepalive)
         self.client.loop_start()
         self.wait(self.client.is_connected, 10, "the test client did not connect")
@@ -62,6 +70,35 @@ class Inbox:
             self.client.disconnect()
             gone.wait(5)
         self.client.loop_stop()
+
+
+def login(stack, user: str) -> tuple[str, str]:
+    """A launched stack's generated user and password (as its processes read them)."""
+    return user, stack.secrets.user_password_file(user).read_text().strip()
+
+
+def connect_refused(port: int, login: tuple[str, str] | None = None) -> str:
+    """Try to log in; the broker's reason for refusing, or "" if it let the client in."""
+    outcome: dict = {}
+    done = threading.Event()
+    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+    if login:
+        client.username_pw_set(*login)
+
+    def on_connect(c, userdata, flags, reason_code, properties=None):
+        outcome["reason"] = "" if not reason_code.is_failure else str(reason_code)
+        done.set()
+
+    client.on_connect = on_connect
+    client.on_disconnect = lambda *a: (outcome.setdefault("reason", "disconnected"), done.set())
+    client.connect("127.0.0.1", port, keepalive=10)
+    client.loop_start()
+    try:
+        assert done.wait(10), "the broker neither accepted nor refused the client"
+    finally:
+        client.disconnect()
+        client.loop_stop()
+    return outcome["reason"]
 
 
 def wait_for(predicate, timeout: float, what: str, interval: float = 0.05):

@@ -26,7 +26,13 @@ def register(app: typer.Typer) -> None:
             None, "--mavlink", help="tcp:HOST:PORT, udpin:HOST:PORT, /dev/ttyACM0 ..."
         ),
         broker: str | None = typer.Option(
-            None, "--broker", help="mqtt://host:port or mqtt://user:password@host:port (mqtts:// for TLS)."
+            None, "--broker", help="mqtt://host:port or mqtt://user@host:port (mqtts:// for TLS)."
+        ),
+        password_file: str | None = typer.Option(
+            None, "--password-file", help="File holding the broker password (or password_env in --config)."
+        ),
+        key_file: str | None = typer.Option(
+            None, "--key-file", help="File holding the fleet key that signs every message (or key_env)."
         ),
         map_path: str | None = typer.Option(None, "--map", help="The guadal map file the planner uses."),
         fleet: str | None = typer.Option(
@@ -80,6 +86,8 @@ def register(app: typer.Typer) -> None:
             "vehicle_id": vehicle_id,
             "mavlink": mavlink,
             "broker": broker,
+            "password_file": password_file,
+            "key_file": key_file,
             "map": map_path,
             "fleet": fleet,
             "sensor": sensor,

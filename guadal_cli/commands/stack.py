@@ -61,10 +61,8 @@ def register(app: typer.Typer) -> None:
         console.print(
             f"stack up: {vehicles} boats, {stack.info['broker']['kind']} broker, state in {stack.state_dir}"
         )
-        console.print(
-            f"broker: {stack.broker_url}  (missions: backend: {{level: sitl, host: {stack.broker_host}, "
-            f"port: {stack.broker_port}, fleet: {fleet}}})"
-        )
+        settings = ", ".join(f"{k}: {v}" for k, v in stack.planner_backend().items())
+        console.print(f"broker: {stack.broker_url}  (missions: backend: {{{settings}}})")
         typer.echo(stack.broker_url)
 
     @stack_app.command("down")

@@ -80,6 +80,18 @@ class Fleet(ABC):
     def remaining(self) -> dict[int, float]:
         return {v: self.max_distance - d for v, d in self.distances.items()}
 
+    @property
+    def lost(self) -> dict[int, str]:
+        """Vehicles out of the mission through a fault (offline, failsafe, refused), with the
+        sentence saying why; none in simulation. A run whose every vehicle is lost is aborted."""
+        return {}
+
+    def pending_controls(self) -> list[dict]:
+        """Operator controls (pause, resume, abort, hold/release a vehicle) received since the
+        last call, each once; the runner polls this between steps. None in simulation; see
+        ``docs/protocol.md`` for the remote levels."""
+        return []
+
     def health(self) -> dict:
         """Faults met on the way (messages dropped, vehicles lost), for the run manifest."""
         return {}

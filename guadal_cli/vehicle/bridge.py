@@ -1,15 +1,17 @@
 """The vehicle bridge: guadal's MQTT protocol on one side, one MAVLink autopilot on the other.
 
-Three threads feed one queue: paho's network loop (commands, planner status), the MAVLink
-reader (acks, arrivals) and the sensor worker (readings). The main loop alone changes the
-bridge's state, so the protocol rules below are plain sequential code:
+Three threads feed one queue: the MQTT channel (commands, planner status, already checked
+and authenticated), the MAVLink reader (acks, arrivals) and the sensor worker (readings).
+The main loop alone changes the bridge's state, so the protocol rules below are plain
+sequential code. Which commands count is decided by :class:`~guadal_cli.channel.session.Follower`
+(one planner session at a time, taken only from a signed ``start``; seq rules):
 
 - ``goto``: geofence, plan a water-only path on the high-resolution graph, drive it waypoint by
   waypoint in GUIDED, ack ``accepted`` then ``reached`` (with the boat's position). A newer goto
   replaces the current one; a duplicate ``seq`` re-sends the ack of the state it is in; an
   older one is ignored and counted.
 - ``measure``: read the sensor at the boat's position, publish a ``measurement``.
-- ``hold``: HOLD mode. ``ping``: contact only.
+- ``hold``: HOLD mode. ``ping``: contact only (it never changes the last seq).
 - No planner message for ``failsafe_timeout`` s, or the planner's last will: HOLD, status
   ``failsafe``. The next goto resumes.
 """
@@ -22,12 +24,12 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-import paho.mqtt.client as mqtt
-
+from ..channel import protocol as messages
+from ..channel.client import Channel
+from ..channel.session import Follower
 from ..errors import GuadalError
-from ..fleet import messages
 from ..maps.format import haversine_m
-from .config import BridgeConfig, parse_broker_url
+from .config import BridgeConfig
 from .lowlevel import LowLevelPlanner, Waypoint
 from .mavlink_link import (
     COMMAND_NAMES,
@@ -47,10 +49,15 @@ MODE_GIVE_UP = 8  # requests before a mode change is reported as failed
 TARGET_RESEND_S = 2.0  # guided targets are not acknowledged: repeat them (idempotent)
 STATUS_REFRESH_S = 15.0
 LINK_LOST_S = 3.0  # autopilot heartbeats are 1 Hz: three missed ones mean the link is down
+LOUD_DROPS = 5  # refused messages of one kind logged at WARNING; the rest at DEBUG (all are counted)
 ARRIVAL_GATE_FACTOR = 4.0  # MISSION_ITEM_REACHED counts only this close (× radius) to the target
 
 COUNTERS = (
     "bad_payload",
+    "unsigned",
+    "bad_signature",
+    "foreign_session",
+    "seq_ahead",
     "wrong_vehicle",
     "stale_seq",
     "duplicate_seq",
@@ -71,6 +78,7 @@ class Goal:
     node: int
     lat: float
     lon: float
+    session: str | None = None
     waypoints: list[Waypoint] = field(default_factory=list)
     index: int = 0
     status: str = "accepted"  # accepted | reached | rejected | failed
@@ -110,7 +118,7 @@ class Bridge:
         self.failsafe_reason: str | None = None
         self.arm_error: str | None = None
         self.autopilot_text: str | None = None
-        self.last_seq = -1
+        self.follower = Follower()
         self.last_kind: str | None = None
         self.goal: Goal | None = None  # the goto being driven, or the last one driven
         self.rejected: Goal | None = None  # the newest goto, when it was refused (for duplicates)
@@ -129,58 +137,34 @@ class Bridge:
         self.link_lost = False
         self.topic_command = messages.topic(self.fleet, self.vid, "command")
         self.topic_planner = messages.topic(self.fleet, None, "status")
-        self.mqtt = self._make_client()
+        self.mqtt = self._make_channel()
 
     # --- MQTT --------------------------------------------------------------------------------
-    def _client_id(self) -> str:
-        return f"guadal-bridge-{self.fleet.replace('/', '-')}-{self.vid}"
-
-    def _make_client(self) -> mqtt.Client:
+    def _make_channel(self) -> Channel:
         """A clean session each time: commands queued for an earlier run are never replayed to
         the boat. What is published while the link is down is not lost either way: the planner
-        re-sends anything unanswered (duplicates are harmless), and this bridge re-subscribes
-        and re-publishes its status on every reconnect."""
-        broker = parse_broker_url(self.config.broker)
-        client = mqtt.Client(
-            mqtt.CallbackAPIVersion.VERSION2,
-            client_id=self._client_id(),
-            clean_session=True,
-            protocol=mqtt.MQTTv311,
+        re-sends anything unanswered (duplicates are harmless), and the channel re-subscribes
+        on every reconnect, when this bridge re-publishes its status."""
+        return Channel(
+            self.config.endpoint(),
+            fleet=self.fleet,
+            client_id=f"guadal-bridge-{self.fleet.replace('/', '-')}-{self.vid}",
+            inbox=self.events,
+            subscriptions=[(self.topic_command, 1), (self.topic_planner, 1)],
+            codec=messages.Codec(self.config.fleet_key()),
+            will=(self._topic("status"), "status", {"state": "offline", "vehicle": self.vid}),
+            max_reconnect_delay=5.0,
         )
-        if broker["username"]:
-            client.username_pw_set(broker["username"], broker["password"])
-        if broker["tls"]:
-            client.tls_set(ca_certs=self.config.tls_ca)
-        client.will_set(
-            self._topic("status"),
-            messages.encode("status", state="offline", vehicle=self.vid),
-            qos=1,
-            retain=True,
-        )
-        client.reconnect_delay_set(min_delay=0.2, max_delay=5)
-        client.on_connect = self._on_connect
-        client.on_disconnect = self._on_disconnect
-        client.on_message = lambda c, u, msg: self.events.put(("mqtt", msg.topic, msg.payload))
-        return client
-
-    def _on_connect(self, client, userdata, flags, reason_code, properties) -> None:
-        if reason_code.is_failure:
-            log.error("broker refused the connection: %s", reason_code)
-            return
-        messages.no_delay(client)
-        # subscribe again on every connect: a restarted broker has forgotten us
-        client.subscribe([(self.topic_command, 1), (self.topic_planner, 1)])
-        self.events.put(("connected",))
-
-    def _on_disconnect(self, client, userdata, flags, reason_code, properties) -> None:
-        if not self.stop.is_set():
-            log.warning("lost the broker (%s); reconnecting", reason_code)
 
     def _topic(self, channel: str) -> str:
         return messages.topic(self.fleet, self.vid, channel)
 
     def _publish(self, channel: str, payload: bytes, qos: int = 1, retain: bool = False):
-        return self.mqtt.publish(self._topic(channel), payload, qos=qos, retain=retain)
+        return self.mqtt.publish_payload(self._topic(channel), payload, qos=qos, retain=retain)
+
+    def _encode(self, channel: str, kind: str, **fields) -> bytes:
+        """A signed payload for one of this vehicle's topics, in the session it follows."""
+        return self.mqtt.codec.encode(self._topic(channel), kind, **fields)
 
     # --- status --------------------------------------------------------------------------------
     def status_fields(self) -> dict:
@@ -197,7 +181,8 @@ class Bridge:
             "goal": None
             if self.goal is None
             else {"seq": self.goal.seq, "node": self.goal.node, "status": self.goal.status},
-            "last_seq": self.last_seq,
+            "session": self.follower.session,
+            "last_seq": self.follower.last_seq,
             "counters": dict(self.counters),
         }
 
@@ -207,14 +192,20 @@ class Bridge:
         if not force and fields == self._status_sent and now - self._status_at < STATUS_REFRESH_S:
             return
         self._status_sent, self._status_at = fields, now
-        self._publish("status", messages.encode("status", **fields), retain=True)
+        self._publish("status", self._encode("status", "status", **fields), retain=True)
 
     def count(self, name: str) -> None:
         self.counters[name] += 1
 
     # --- acks ------------------------------------------------------------------------------------
     def _ack_goal(self, goal: Goal) -> None:
-        fields = {"seq": goal.seq, "status": goal.status, "command": "goto", "node": goal.node}
+        fields = {
+            "session": goal.session,
+            "seq": goal.seq,
+            "status": goal.status,
+            "command": "goto",
+            "node": goal.node,
+        }
         if goal.reason:
             fields["reason"] = goal.reason
         if goal.reached_at is not None:
@@ -222,25 +213,30 @@ class Bridge:
         t = self.link.snapshot().time_boot_s
         if t is not None:
             fields["t"] = t
-        self._publish("ack", messages.encode("ack", **fields))
+        self._publish("ack", self._encode("ack", "ack", **fields))
 
     def _ack(self, seq: int, kind: str, status: str, reason: str | None = None) -> bytes:
-        fields = {"seq": seq, "status": status, "command": kind}
+        fields = {"session": self.follower.session, "seq": seq, "status": status, "command": kind}
         if reason:
             fields["reason"] = reason
-        payload = messages.encode("ack", **fields)
+        payload = self._encode("ack", "ack", **fields)
         self._publish("ack", payload)
         return payload
 
     # --- commands ----------------------------------------------------------------------------------
-    def handle_command(self, payload: bytes) -> None:
-        try:
-            data = messages.decode(payload, expected=messages.COMMAND_TYPES)
-        except messages.ProtocolError as exc:
-            self.count("bad_payload")
-            log.warning("ignored a command: %s", exc)
-            self.publish_status()
-            return
+    def drop(self, kind: str, sentence: str) -> None:
+        """An unusable message, counted; the first few of each kind are logged at WARNING."""
+        counter = {"malformed": "bad_payload", "topic": "bad_payload"}.get(kind, kind)
+        self.count(counter)
+        level = logging.WARNING if self.counters[counter] <= LOUD_DROPS else logging.DEBUG
+        log.log(level, "ignored a message (%s, %d so far): %s", counter, self.counters[counter], sentence)
+        self.publish_status()
+
+    def _idle(self) -> bool:
+        """In HOLD after a failsafe or a hold, nothing to drive: a new session may take the boat."""
+        return self.state in ("failsafe", "hold") and not (self.goal is not None and self.goal.active)
+
+    def handle_command(self, data: dict) -> None:
         if "vehicle" in data and data["vehicle"] != self.vid:
             self.count("wrong_vehicle")
             log.warning(
@@ -251,20 +247,33 @@ class Bridge:
             self.publish_status()
             return
         seq, kind = data["seq"], data["type"]
-        if seq < self.last_seq:
-            self.count("stale_seq")
-            log.warning("ignored %s seq %d: older than the last command (seq %d).", kind, seq, self.last_seq)
+        verdict, why = self.follower.judge(data, signed=self.mqtt.codec.signing, idle=self._idle())
+        if verdict in ("stale", "ahead", "foreign"):
+            counter = {"stale": "stale_seq", "ahead": "seq_ahead", "foreign": "foreign_session"}[verdict]
+            self.count(counter)
+            level = logging.WARNING if self.counters[counter] <= LOUD_DROPS else logging.DEBUG
+            log.log(level, "ignored %s seq %d: %s.", kind, seq, why)
             self.publish_status()
             return
         self.last_contact = time.monotonic()
-        if seq == self.last_seq:
+        if verdict == "contact":
+            return
+        if verdict == "duplicate":
             self.count("duplicate_seq")
             log.info("duplicate %s seq %d: repeating its answer", kind, seq)
             self._repeat_answer(kind, seq)
             self.publish_status()
             return
-        self.last_seq, self.last_kind = seq, kind
-        if kind == "goto":
+        previous = self.follower.session
+        self.follower.take(data)
+        self.last_kind = kind
+        if verdict == "adopt":
+            if previous != data["session"]:
+                log.info("following planner session %s (%s)", data["session"], why)
+                if self.goal is not None and self.goal.active:
+                    self.enter_hold()  # the old session's goal is nobody's now
+            self.last_reply = ("ack", self._ack(seq, "start", "accepted"))
+        elif kind == "goto":
             self.start_goto(data)
         elif kind == "measure":
             self.start_measure(data)
@@ -282,11 +291,17 @@ class Bridge:
             for goal in (self.goal, self.rejected):
                 if goal is not None and goal.seq == seq:
                     self._ack_goal(goal)
-        elif kind in ("measure", "hold") and self.last_reply is not None:
+        elif kind in ("start", "measure", "hold") and self.last_reply is not None:
             self._publish(*self.last_reply)
 
     def start_goto(self, data: dict) -> None:
-        goal = Goal(seq=data["seq"], node=data["node"], lat=float(data["lat"]), lon=float(data["lon"]))
+        goal = Goal(
+            seq=data["seq"],
+            node=data["node"],
+            lat=float(data["lat"]),
+            lon=float(data["lon"]),
+            session=data["session"],
+        )
         s = self.link.snapshot()
         reason = self.planner.check_target(goal.node, goal.lat, goal.lon)
         if reason is None and s.lat is None:
@@ -336,7 +351,7 @@ class Bridge:
             )
             return
         self.last_reply = None
-        self._sensor_jobs.put((data["seq"], data["node"], s.lat, s.lon, s.time_boot_s))
+        self._sensor_jobs.put((data["session"], data["seq"], data["node"], s.lat, s.lon, s.time_boot_s))
 
     def _sensor_worker(self) -> None:
         """Readings can block (a serial probe): they run here, not in the main loop."""
@@ -344,28 +359,37 @@ class Bridge:
             job = self._sensor_jobs.get()
             if job is None:
                 return
-            seq, node, lat, lon, t = job
+            session, seq, node, lat, lon, t = job
             try:
                 result = ("value", self.sensor.read(lat, lon))
             except SensorError as exc:
                 result = ("error", str(exc))
             except Exception as exc:  # a third-party probe's bug must not stop the bridge
                 result = ("error", f"sensor failed: {exc.__class__.__name__}: {exc}")
-            self.events.put(("sensor", seq, node, lat, lon, t, result))
+            self.events.put(("sensor", session, seq, node, lat, lon, t, result))
 
-    def finish_measure(self, seq, node, lat, lon, t, result) -> None:
+    def finish_measure(self, session, seq, node, lat, lon, t, result) -> None:
         kind, value = result
         if kind == "error":
             self.count("sensor_error")
             log.warning("measure seq %d failed: %s", seq, value)
             reply = ("ack", self._ack(seq, "measure", "failed", value))
         else:
-            payload = messages.encode(
-                "measurement", seq=seq, node=node, value=value, lat=lat, lon=lon, t=t, vehicle=self.vid
+            payload = self._encode(
+                "measurement",
+                "measurement",
+                session=session,
+                seq=seq,
+                node=node,
+                value=value,
+                lat=lat,
+                lon=lon,
+                t=t,
+                vehicle=self.vid,
             )
             self._publish("measurement", payload)
             reply = ("measurement", payload)
-        if seq == self.last_seq:
+        if seq == self.follower.last_seq and session == self.follower.session:
             self.last_reply = reply
 
     # --- modes, arming, failsafe -------------------------------------------------------------------
@@ -422,13 +446,15 @@ class Bridge:
             self.state = "failsafe"
         self.publish_status(force=True)
 
-    def handle_planner_status(self, payload: bytes) -> None:
-        try:
-            data = messages.decode(payload, expected={"status"})
-        except messages.ProtocolError as exc:
-            self.count("bad_payload")
-            log.warning("ignored planner status: %s", exc)
-            return
+    def handle_planner_status(self, data: dict) -> None:
+        if data.get("session") != self.follower.session:
+            if self.follower.session is not None and data.get("session") is not None:
+                log.debug(
+                    "planner status of session %s, not %s: ignored",
+                    data.get("session"),
+                    self.follower.session,
+                )
+            return  # another run's planner (or a retained status from before): not ours to obey
         if data["state"] == "offline":
             if self.state == "hold":
                 # a planner that ends cleanly holds every boat, then says goodbye: not a comms loss
@@ -546,6 +572,7 @@ class Bridge:
                 return
             goal.status, goal.reached_at = "reached", (s.lat, s.lon)
             log.info("goto seq %d reached node %d (%.2f m from the target)", goal.seq, goal.node, d)
+            self.publish_telemetry()  # the fix the planner checks the ack against, sent first
             self._ack_goal(goal)
             self.publish_status()
         elif reached_message:
@@ -584,7 +611,8 @@ class Bridge:
         s = self.link.snapshot()
         if s.lat is None:
             return
-        payload = messages.encode(
+        payload = self._encode(
+            "telemetry",
             "telemetry",
             t=s.time_boot_s,
             lat=s.lat,
@@ -637,19 +665,25 @@ class Bridge:
 
     def dispatch(self, event) -> None:
         kind = event[0]
-        if kind == "mqtt":
-            _, topic, payload = event
-            if topic == self.topic_command:
-                self.handle_command(payload)
-            elif topic == self.topic_planner:
-                self.handle_planner_status(payload)
+        if kind == "message":
+            _, vehicle, channel, data = event
+            if vehicle == self.vid and channel == "command":
+                self.handle_command(data)
+            elif vehicle is None and channel == "status":
+                self.handle_planner_status(data)
+        elif kind == "dropped":
+            self.drop(event[1], event[2])
         elif kind == "mav":
             self.handle_mavlink(event[1])
         elif kind == "sensor":
             self.finish_measure(*event[1:])
         elif kind == "connected":
-            log.info("connected to the broker %s as vehicle %d", self.config.broker, self.vid)
+            log.info("connected to the broker %s as vehicle %d", self.mqtt.url, self.vid)
             self.publish_status(force=True)
+        elif kind == "disconnected" and not self.stop.is_set():
+            log.warning("lost the broker (%s); reconnecting", event[1])
+        elif kind == "refused":
+            log.error("%s (%s)", event[1], self.mqtt.url)
 
     def run(self) -> None:
         """Serve until :attr:`stop` is set; then publish ``offline`` and (optionally) HOLD."""
@@ -661,9 +695,7 @@ class Bridge:
         worker = threading.Thread(target=self._sensor_worker, name="sensor", daemon=True)
         if self.sensor is not None:
             worker.start()
-        broker = parse_broker_url(self.config.broker)
-        self.mqtt.connect_async(broker["host"], broker["port"], keepalive=10)
-        self.mqtt.loop_start()
+        self.mqtt.start()
         try:
             while not self.stop.is_set():
                 try:
@@ -689,15 +721,9 @@ class Bridge:
             except Exception as exc:
                 log.warning("could not send HOLD on exit: %s", exc)
         info = self._publish(
-            "status", messages.encode("status", state="offline", vehicle=self.vid), retain=True
+            "status", self._encode("status", "status", state="offline", vehicle=self.vid), retain=True
         )
-        if self.mqtt.is_connected():
-            try:
-                info.wait_for_publish(timeout=2.0)
-            except (RuntimeError, ValueError):
-                pass
-        self.mqtt.disconnect()
-        self.mqtt.loop_stop()
+        self.mqtt.close([info])
         self.link.close()
         if self.sensor is not None:
             self.sensor.close()

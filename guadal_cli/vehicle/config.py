@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from pathlib import Path
 from typing import Literal
-from urllib.parse import unquote, urlsplit
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from ..channel.client import Endpoint
+from ..channel.credentials import fleet_key, read_secret
 from ..errors import GuadalError, explain_validation_error
 
 
@@ -26,8 +27,16 @@ class BridgeConfig(BaseModel):
     )
     baud: int = Field(default=115200, gt=0, description="Baud rate of a serial autopilot link.")
     broker: str = Field(
-        default="mqtt://127.0.0.1:1883", description="mqtt://[user:pass@]host:port or mqtts:// for TLS."
+        default="mqtt://127.0.0.1:1883", description="mqtt://[user@]host:port, or mqtts:// for TLS."
     )
+    password_file: str | None = Field(default=None, description="File holding the broker password.")
+    password_env: str | None = Field(
+        default=None, description="Environment variable holding the broker password."
+    )
+    key_file: str | None = Field(
+        default=None, description="File holding the fleet key that signs every message."
+    )
+    key_env: str | None = Field(default=None, description="Environment variable holding the fleet key.")
     map: str = Field(description="The guadal map file the planner uses.")
     fleet: str = Field(default="guadal", min_length=1, description="Topic prefix shared with the planner.")
     sensor: str | dict | None = Field(default=None, description="NAME:VALUE or {type: NAME, ...}.")
@@ -61,8 +70,27 @@ class BridgeConfig(BaseModel):
     sensor_base_dir: Path | None = Field(default=None, exclude=True)
 
     def map_path(self) -> Path:
-        p = Path(self.map).expanduser()
+        return self._resolve(self.map)
+
+    def _resolve(self, name: str) -> Path:
+        p = Path(name).expanduser()
         return p if p.is_absolute() or self.base_dir is None else self.base_dir / p
+
+    def endpoint(self) -> Endpoint:
+        """The broker and our login; the password from its file or variable, never logged."""
+        password = read_secret(
+            file=self._resolve(self.password_file) if self.password_file else None,
+            env=self.password_env,
+            what="password",
+        )
+        return Endpoint.from_url(self.broker, password=password, ca_file=self.tls_ca)
+
+    def fleet_key(self) -> bytes | None:
+        return fleet_key(
+            file=self._resolve(self.key_file) if self.key_file else None,
+            env=self.key_env,
+            what="key",
+        )
 
 
 def load_config(path: Path | None, overrides: dict) -> BridgeConfig:
@@ -93,28 +121,6 @@ def load_config(path: Path | None, overrides: dict) -> BridgeConfig:
         config = BridgeConfig(**data)
     except ValidationError as exc:
         raise GuadalError(explain_validation_error(exc, BridgeConfig, prefix=where)) from exc
-    parse_broker_url(config.broker)
+    config.endpoint()  # a bad URL, or a missing password or key file, is said before anything starts
+    config.fleet_key()
     return config
-
-
-def parse_broker_url(url: str) -> dict:
-    """``mqtt://[user:pass@]host[:port]`` → host, port, tls, username, password."""
-    try:
-        parts = urlsplit(url)
-        port = parts.port
-    except ValueError as exc:
-        raise GuadalError(
-            f"broker URL '{url}' is not valid ({exc}); use mqtt://host:port or mqtt://user:password@host:port."
-        ) from exc
-    if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname:
-        raise GuadalError(
-            f"broker URL '{url}' must look like mqtt://host:port or mqtt://user:password@host:port (mqtts:// for TLS)."
-        )
-    tls = parts.scheme == "mqtts"
-    return {
-        "host": parts.hostname,
-        "port": port or (8883 if tls else 1883),
-        "tls": tls,
-        "username": unquote(parts.username) if parts.username else None,
-        "password": unquote(parts.password) if parts.password else None,
-    }

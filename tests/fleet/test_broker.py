@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
-from fleet_support import Inbox, wait_for
+from fleet_support import Inbox, connect_refused, wait_for
 
+from guadal_cli.channel.broker import mosquitto_binary, port_accepts, start_broker
 from guadal_cli.errors import GuadalError
-from guadal_cli.fleet.broker import mosquitto_binary, port_accepts, start_broker
 
 KINDS = ["embedded"] + (["mosquitto"] if mosquitto_binary() else [])
 
@@ -130,3 +130,68 @@ def test_broker_restarts_on_the_same_port_and_clients_reconnect(kind):
 def test_unknown_broker_kind_is_one_sentence():
     with pytest.raises(GuadalError, match="broker kind 'rabbit' is unknown"):
         start_broker("rabbit")
+
+
+# --- authentication and ACL: the same rules in both brokers -----------------------------------------
+@pytest.fixture(scope="module", params=KINDS)
+def guarded(request, tmp_path_factory):
+    """A broker with a two-boat fleet's generated users and ACL."""
+    from guadal_cli.channel.credentials import FleetSecrets
+
+    secrets = FleetSecrets.generate(tmp_path_factory.mktemp("secrets") / "s", "g", 2)
+    b = start_broker(request.param, secrets=secrets)
+    yield b, secrets
+    b.stop()
+
+
+def _login(secrets, user):
+    return user, secrets.user_password_file(user).read_text().strip()
+
+
+def test_anonymous_and_wrong_passwords_are_refused(guarded):
+    broker, secrets = guarded
+    assert connect_refused(broker.port) != ""
+    assert connect_refused(broker.port, ("planner", "not-the-password")) != ""
+    assert connect_refused(broker.port, ("intruder", "x")) != ""
+    assert connect_refused(broker.port, _login(secrets, "planner")) == ""
+
+
+def test_a_vehicle_user_publishes_only_on_its_own_topics(guarded):
+    broker, secrets = guarded
+    watcher = Inbox(broker.port, login=_login(secrets, "watcher"))
+    boat1 = Inbox(broker.port, login=_login(secrets, "vehicle-1"))
+    try:
+        watcher.subscribe("g/#")
+        forged = [
+            "g/vehicle/0/command",
+            "g/vehicle/0/ack",
+            "g/vehicle/1/command",
+            "g/planner/status",
+            "g/planner/control",
+        ]
+        for name in forged:  # the broker acknowledges, and drops: a client learns nothing
+            boat1.client.publish(name, b"forged", qos=1).wait_for_publish(10)
+        boat1.client.publish("g/vehicle/1/ack", b"mine", qos=1).wait_for_publish(10)
+        watcher.wait(lambda: watcher.on("g/vehicle/1/ack"), 10, "the boat's own ack was not delivered")
+        # same client, in order: anything forged would have arrived before its own ack
+        assert [m.topic for m in watcher.messages] == ["g/vehicle/1/ack"]
+    finally:
+        watcher.close()
+        boat1.close()
+
+
+def test_a_vehicle_user_cannot_read_another_vehicles_commands(guarded):
+    broker, secrets = guarded
+    boat1 = Inbox(broker.port, login=_login(secrets, "vehicle-1"))
+    planner = Inbox(broker.port, login=_login(secrets, "planner"))
+    try:
+        # (Mosquitto grants the subscription and filters each delivery; amqtt refuses it: either
+        # way nothing of vehicle 0 reaches vehicle 1)
+        boat1.subscribe("g/vehicle/0/command", "g/vehicle/1/command")
+        planner.client.publish("g/vehicle/0/command", b"for boat 0", qos=1).wait_for_publish(10)
+        planner.client.publish("g/vehicle/1/command", b"for boat 1", qos=1).wait_for_publish(10)
+        boat1.wait(lambda: boat1.on("g/vehicle/1/command"), 10, "boat 1 did not get its own command")
+        assert boat1.on("g/vehicle/0/command") == []
+    finally:
+        boat1.close()
+        planner.close()

@@ -5,17 +5,16 @@ One stack serves the module (starting one costs seconds); the test that stops a 
 
 from __future__ import annotations
 
-import json
 import signal
 import threading
 
 import pytest
-from fleet_support import Inbox, wait_for
+from fleet_support import Inbox, login, wait_for
 from support import LAKE
 
+from guadal_cli.channel import protocol as msg
+from guadal_cli.channel.broker import start_broker
 from guadal_cli.errors import GuadalError
-from guadal_cli.fleet import messages as msg
-from guadal_cli.fleet.broker import start_broker
 from guadal_cli.fleet.remote import RemoteFleet, SitlConfig
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import load_map
@@ -53,10 +52,27 @@ def stack(graph, tmp_path_factory):
     s.down()
 
 
-def make_fleet(graph, port, max_distance=200.0, **overrides):
+def make_fleet(graph, stack_or_port, max_distance=200.0, **overrides):
+    """A planner on a launched stack, with the stack's planner user and fleet key (or on a bare port)."""
     settings = {"hop_timeout": 30, "reset_timeout": 60, "connect_timeout": 20, **overrides}
-    config = SitlConfig(level="sitl", port=port, **settings)
+    if isinstance(stack_or_port, Stack):
+        s = stack_or_port
+        settings = {
+            "port": s.broker_port,
+            "username": "planner",
+            "password_file": str(s.secrets.user_password_file("planner")),
+            "key_file": str(s.secrets.key_file),
+            **settings,
+        }
+    else:
+        settings["port"] = stack_or_port
+    config = SitlConfig(level="sitl", **settings)
     return RemoteFleet(graph, N, max_distance, lambda v, node: float(node), config)
+
+
+def signed(stack, topic: str, kind: str, **fields) -> bytes:
+    """A payload signed with the stack's fleet key (what a compromised boat could send)."""
+    return msg.Codec(stack.secrets.key_file.read_text().strip().encode()).encode(topic, kind, **fields)
 
 
 def drive(fleet, targets):
@@ -69,7 +85,7 @@ def drive(fleet, targets):
 
 def test_hops_move_the_boats_and_count_graph_metres(graph, stack):
     start = auto_positions(graph, N)
-    fleet = make_fleet(graph, stack.broker_port)
+    fleet = make_fleet(graph, stack)
     try:
         fleet.reset(start)
         assert fleet.positions == dict(enumerate(start)) and fleet.distances == {0: 0.0, 1: 0.0, 2: 0.0}
@@ -97,7 +113,7 @@ def test_hops_move_the_boats_and_count_graph_metres(graph, stack):
 def test_reset_sails_to_the_start_nodes_without_counting_it(graph, stack):
     homes = auto_positions(graph, N)
     elsewhere = [n for n in range(graph.n_nodes) if 12 <= graph.distance(homes[0], n) <= 20][::7][:N]
-    fleet = make_fleet(graph, stack.broker_port)
+    fleet = make_fleet(graph, stack)
     try:
         fleet.reset(elsewhere)
         assert fleet.positions == dict(enumerate(elsewhere)) and fleet.distances == {0: 0.0, 1: 0.0, 2: 0.0}
@@ -113,7 +129,7 @@ def test_reset_sails_to_the_start_nodes_without_counting_it(graph, stack):
 
 def test_a_silent_vehicle_makes_the_hop_time_out_with_a_sentence(graph, stack):
     start = auto_positions(graph, N)
-    fleet = make_fleet(graph, stack.broker_port, hop_timeout=1.0)
+    fleet = make_fleet(graph, stack, hop_timeout=1.0)
     bridge = next(p for p in stack.processes if p.name == "bridge-1")
     try:
         fleet.reset(start)
@@ -134,7 +150,7 @@ def test_a_silent_vehicle_makes_the_hop_time_out_with_a_sentence(graph, stack):
 
 def test_vehicle_measurements_come_from_the_boats_probes(graph, stack):
     start = auto_positions(graph, N)
-    fleet = make_fleet(graph, stack.broker_port, measurements="vehicle")
+    fleet = make_fleet(graph, stack, measurements="vehicle")
     try:
         fleet.reset(start)
         target = next(n for n in graph.neighbors(start[0]) if n not in start)
@@ -154,13 +170,14 @@ def test_vehicle_measurements_come_from_the_boats_probes(graph, stack):
 
 def test_a_vehicle_in_failsafe_is_done_and_the_others_go_on(graph, stack):
     start = auto_positions(graph, N)
-    fleet = make_fleet(graph, stack.broker_port)
-    raw = Inbox(stack.broker_port)
+    fleet = make_fleet(graph, stack)
+    raw = Inbox(stack.broker_port, login=login(stack, "vehicle-1"))
     try:
         fleet.reset(start)
-        raw.client.publish(
-            msg.topic("guadal", 1, "status"), msg.encode("status", state="failsafe"), qos=1
-        ).wait_for_publish(10)
+        status = msg.topic("guadal", 1, "status")
+        raw.client.publish(status, signed(stack, status, "status", state="failsafe"), qos=1).wait_for_publish(
+            10
+        )
         wait_for(lambda: fleet.vehicles[1].problem, 10, "the failsafe status was not taken into account")
         hops = {v: next(n for n in graph.neighbors(start[v]) if n not in start) for v in (0, 1)}
         reached, done = fleet.move(hops)
@@ -174,30 +191,39 @@ def test_a_vehicle_in_failsafe_is_done_and_the_others_go_on(graph, stack):
 
 def test_bad_payloads_are_counted_and_the_mission_goes_on(graph, stack):
     start = auto_positions(graph, N)
-    fleet = make_fleet(graph, stack.broker_port)
-    raw = Inbox(stack.broker_port)
+    fleet = make_fleet(graph, stack)
+    raw = Inbox(stack.broker_port, login=login(stack, "vehicle-0"))
     try:
         fleet.reset(start)
         ack = msg.topic("guadal", 0, "ack")
+        goto = fleet.vehicles[0].goto
+        session = fleet.session
+        other_key = msg.Codec(b"another fleet's key, 32 bytes ok")
         bad = [
-            (ack, b"{not json"),
-            (ack, b"x" * 20_000),  # oversized
-            (ack, json.dumps({"v": 1, "type": "teleport", "seq": 1}).encode()),  # unknown type
-            (
-                ack,
-                json.dumps({"v": 1, "type": "ack", "seq": "7", "status": "reached"}).encode(),
-            ),  # wrong field type
-            (msg.topic("guadal", 7, "ack"), msg.encode("ack", seq=1, status="reached")),  # unknown vehicle
-            (ack, msg.encode("ack", seq=fleet.vehicles[0].goto.seq - 1, status="reached")),  # stale seq
-            (
-                ack,
-                msg.encode("ack", seq=fleet.vehicles[0].goto.seq, status="reached"),
-            ),  # duplicate of the reset's
+            b"{not json",
+            b"x" * 20_000,  # oversized
+            signed(stack, ack, "teleport", seq=1),  # unknown type
+            signed(stack, ack, "ack", session=session, seq="7", status="reached"),  # wrong field type
+            msg.encode("ack", session=session, seq=goto.seq, status="reached"),  # unsigned
+            other_key.encode(ack, "ack", session=session, seq=goto.seq, status="reached"),  # wrong key
+            signed(
+                stack, msg.topic("guadal", 1, "ack"), "ack", session=session, seq=goto.seq, status="reached"
+            ),
+            signed(stack, ack, "ack", session=session, seq=goto.seq - 1, status="reached"),  # stale seq
+            signed(stack, ack, "ack", session=session, seq=goto.seq, status="reached"),  # duplicate
+            signed(stack, ack, "ack", session="0123456789abcdef", seq=goto.seq, status="reached"),  # old run
         ]
         before = fleet.dropped.copy()
-        for name, payload in bad:
-            raw.client.publish(name, payload, qos=1).wait_for_publish(10)
-        expected = {"malformed": 4, "unknown_vehicle": 1, "stale": 1, "duplicate": 1}
+        for payload in bad:
+            raw.client.publish(ack, payload, qos=1).wait_for_publish(10)
+        expected = {
+            "malformed": 4,
+            "unsigned": 1,
+            "bad_signature": 2,  # the wrong key, and a tag made for another topic
+            "stale": 1,
+            "duplicate": 1,
+            "foreign_session": 1,
+        }
         # (answers to the previous test's last commands may add stale ones: count from here)
         wait_for(
             lambda: all(fleet.dropped[k] - before[k] >= n for k, n in expected.items()),
@@ -215,7 +241,7 @@ def test_bad_payloads_are_counted_and_the_mission_goes_on(graph, stack):
 
 def test_broker_restart_mid_mission_loses_no_command(graph, stack):
     start = auto_positions(graph, N)
-    fleet = make_fleet(graph, stack.broker_port)
+    fleet = make_fleet(graph, stack)
     # distinct targets 20-30 m away: several hops each
     ring = [n for n in range(graph.n_nodes) if 20 <= graph.distance(start[1], n) <= 30 and n not in start]
     far = dict(enumerate(ring[:: max(1, len(ring) // N)][:N]))
@@ -236,7 +262,7 @@ def test_broker_restart_mid_mission_loses_no_command(graph, stack):
         broker.popen.kill()  # the broker dies with commands in flight
         broker.popen.wait(5)
         wait_for(lambda: not fleet._connected, 10, "the fleet did not notice the broker's death")
-        replacement = start_broker("mosquitto", port=stack.broker_port)
+        replacement = start_broker("mosquitto", port=stack.broker_port, secrets=stack.secrets)
         broker.popen = replacement.process  # so the stack stops the new one
         broker.pid = replacement.pid
         runner.join(90)
@@ -275,7 +301,7 @@ def test_missing_bridges_are_named(graph):
 def test_a_vehicle_whose_bridge_stops_is_done_with_a_reason(graph, stack):
     """Runs last in the module: it stops bridge 2."""
     start = auto_positions(graph, N)
-    fleet = make_fleet(graph, stack.broker_port)
+    fleet = make_fleet(graph, stack)
     try:
         fleet.reset(start)
         bridge = next(p for p in stack.processes if p.name == "bridge-2")

@@ -11,12 +11,12 @@ import uuid
 from pathlib import Path
 
 import yaml
-from fleet_support import Inbox, processes_marked, wait_for
+from fleet_support import Inbox, connect_refused, processes_marked, wait_for
 from support import LAKE, ROOT, run_cli
 from typer.testing import CliRunner
 
 from guadal_cli.app import app
-from guadal_cli.fleet import messages as msg
+from guadal_cli.channel import protocol as msg
 
 
 def cli(*args):
@@ -44,7 +44,17 @@ def test_stack_up_then_down_leaves_no_process(tmp_path):
         assert len(pids) == 4 and all(alive(p) for p in pids)  # broker, emulator, two bridges
         assert (state / "stack.json").is_file()
         # up returned only once every bridge was online: the retained statuses are there already
-        inbox = Inbox(info["broker"]["port"])
+        secrets = state / "secrets"  # generated for this stack: owner-only
+        assert (secrets.stat().st_mode & 0o777) == 0o700 and (state.stat().st_mode & 0o777) == 0o700
+        files = [p for p in secrets.rglob("*") if p.is_file()]
+        assert files and all((p.stat().st_mode & 0o777) == 0o600 for p in files)
+        assert connect_refused(info["broker"]["port"]) != ""  # no anonymous client
+        password = Path(info["planner"]["password_file"]).read_text().strip()
+        assert password not in up.stdout + up.stderr
+        inbox = Inbox(
+            info["broker"]["port"],
+            login=("watcher", (secrets / "users" / "watcher.password").read_text().strip()),
+        )
         inbox.subscribe("guadal/vehicle/+/status")
         inbox.wait(
             lambda: len({m.topic for m in inbox.messages}) == 2, 5, "the retained statuses are missing"
@@ -64,6 +74,7 @@ def test_stack_up_then_down_leaves_no_process(tmp_path):
     assert down.returncode == 0, down.stderr
     assert not any(alive(p) for p in pids)
     assert not (state / "stack.json").exists()
+    assert not (state / "secrets").exists()
     twice = cli("stack", "down", "--state-dir", state)
     assert twice.exit_code == 0 and "nothing to stop" in twice.output
 

@@ -12,7 +12,7 @@ sys.path.insert(0, str(Path(__file__).parent))  # vehicle_support, beside this f
 
 from vehicle_support import LAKE, Stack  # noqa: E402
 
-from guadal_cli.fleet.broker import start_broker
+from guadal_cli.channel.broker import start_broker
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import Map
 

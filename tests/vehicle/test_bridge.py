@@ -18,8 +18,8 @@ import pytest
 from fleet_support import wait_for
 from vehicle_support import Planner, Stack
 
-from guadal_cli.fleet import messages
-from guadal_cli.fleet.broker import start_broker
+from guadal_cli.channel import protocol as messages
+from guadal_cli.channel.broker import start_broker
 from guadal_cli.maps.format import haversine_m
 
 MANUAL, HOLD, GUIDED = 0, 4, 15
@@ -55,9 +55,10 @@ def shared(own_broker, lake, tmp_path_factory):
 
 @pytest.fixture
 def planner(shared):
-    """A fresh seq range for each test (seqs only grow), with the message log cleared."""
+    """A fresh seq range for each test (seqs only grow, by less than the bridge's limit on
+    jumps), with the message log cleared."""
     p = shared.planner
-    p.seq = max(p.seq, shared_status(shared)["last_seq"]) + 100
+    p.seq = max(p.seq, shared_status(shared)["last_seq"]) + 50
     p.forget()
     return p
 
@@ -165,7 +166,7 @@ def test_bad_payloads_are_counted_and_the_bridge_keeps_answering(shared, planner
     planner.raw(b'{"v":1,"type":"goto","seq":1,"node":0,"lat":37.4,"pad":"' + b"x" * 20_000 + b'"}')
     planner.raw(messages.encode("dance", seq=planner.seq + 1))
     planner.raw(json.dumps({"v": 2, "type": "ping", "seq": planner.seq + 1}).encode())
-    planner.raw(messages.encode("ping", seq=planner.seq + 1, vehicle=7))
+    planner.raw(messages.encode("ping", session=planner.session, seq=planner.seq, vehicle=7))
     planner.wait_status(
         lambda st: (
             st["counters"]["bad_payload"] == before["bad_payload"] + 4
@@ -225,15 +226,10 @@ def test_hold_stops_the_boat_and_the_next_goto_resumes(shared, planner):
     shared.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "no HOLD after the hold command")
     planner.wait_status(lambda st: st["state"] == "hold", 5, "status does not say hold")
     # a planner that ends cleanly (hold, then offline) is not a comms loss: no failsafe
-    planner_status = messages.topic(shared.fleet, None, "status")
-    planner.client.publish(
-        planner_status, messages.encode("status", state="offline"), qos=1, retain=True
-    ).wait_for_publish(5)
+    planner.publish_status("offline")
     wait_for(lambda: "vehicle already in HOLD" in shared.log(), 5, "planner offline not noticed")
     assert planner.status()["state"] == "hold"
-    planner.client.publish(
-        planner_status, messages.encode("status", state="online"), qos=1, retain=True
-    ).wait_for_publish(5)
+    planner.publish_status("online")
     seq = planner.goto(g.node_at(3, 2), g)
     planner.wait_ack(seq, "reached", 20)
     assert planner.status()["state"] == "online"
@@ -262,7 +258,7 @@ def test_bridge_comes_back_after_a_broker_restart(shared, own_broker, planner):
     planner.close()
     shared.planner = fresh = Planner(own_broker["broker"], shared.fleet)
     fresh.wait_status(lambda st: st["state"] == "online", 15, "the bridge did not re-publish its status")
-    fresh.seq = fresh.status()["last_seq"]
+    fresh.session, fresh.seq = planner.session, fresh.status()["last_seq"]  # the same planner, reconnected
     g = shared.graph
     seq = fresh.goto(g.node_at(2, 2), g)
     fresh.wait_ack(seq, "reached", 20)
@@ -284,14 +280,15 @@ PLANNER_WITH_WILL = textwrap.dedent(
     """
     import sys, time
     import paho.mqtt.client as mqtt
-    from guadal_cli.fleet import messages
-    port, fleet = int(sys.argv[1]), sys.argv[2]
+    from guadal_cli.channel import protocol as messages
+    port, fleet, session = int(sys.argv[1]), sys.argv[2], sys.argv[3]
     topic = messages.topic(fleet, None, "status")
     c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
-    c.will_set(topic, messages.encode("status", state="offline"), qos=1, retain=True)
+    c.will_set(topic, messages.encode("status", state="offline", session=session), qos=1, retain=True)
     c.connect("127.0.0.1", port, keepalive=5)
     c.loop_start()
-    c.publish(topic, messages.encode("status", state="online"), qos=1, retain=True).wait_for_publish(5)
+    status = messages.encode("status", state="online", session=session)
+    c.publish(topic, status, qos=1, retain=True).wait_for_publish(5)
     print("up", flush=True)
     time.sleep(60)
     """
@@ -333,7 +330,7 @@ def test_failsafe_holds_on_silence_and_on_the_planners_last_will(broker, lake, t
 
         # a planner process that dies without a word: the broker publishes its last will
         dying = subprocess.Popen(
-            [sys.executable, "-c", PLANNER_WITH_WILL, str(broker.port), s.fleet],
+            [sys.executable, "-c", PLANNER_WITH_WILL, str(broker.port), s.fleet, p.session],
             stdout=subprocess.PIPE,
             text=True,
         )

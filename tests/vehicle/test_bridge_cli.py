@@ -38,7 +38,7 @@ def test_bad_settings_get_one_sentence(run, tmp_path, lake):
     cases = [
         (
             base + ["--map", map_path, "--broker", "http://host:1883"],
-            "must look like mqtt://host:port or mqtt://user:password@host:port",
+            "must look like mqtt://host:port or mqtt://user@host:port",
         ),
         (base + ["--map", str(tmp_path / "nope.json")], "nope.json' does not exist"),
         (base + ["--map", map_path, "--sensor", "synthetik:x.csv"], "Did you mean 'synthetic'?"),
@@ -119,28 +119,48 @@ def test_sigterm_while_waiting_for_the_autopilot_exits_quietly(lake, tmp_path):
 def test_config_file_paths_are_relative_to_the_file_and_options_win(tmp_path):
     from pathlib import Path
 
-    from guadal_cli.vehicle.config import load_config, parse_broker_url
+    from guadal_cli.vehicle.config import load_config
 
     deploy = tmp_path / "deploy"
     deploy.mkdir()
+    (deploy / "boat2.password").write_text("s@cret\n")
+    (deploy / "fleet.key").write_text("0123456789abcdef0123456789abcdef\n")
     (deploy / "bridge.yaml").write_text(
         "vehicle_id: 2\nmavlink: /dev/serial0\nmap: lake.json\nsensor: {type: synthetic, path: truth.csv}\n"
-        "broker: mqtts://boat2:s%40cret@broker.example.org\nfailsafe_timeout: 20\n"
+        "broker: mqtts://boat2@broker.example.org\npassword_file: boat2.password\nkey_file: fleet.key\n"
+        "failsafe_timeout: 20\n"
     )
     config = load_config(deploy / "bridge.yaml", {"failsafe_timeout": 5.0, "vehicle_id": None})
     assert config.map_path() == deploy / "lake.json"
     assert config.sensor_base_dir == deploy
     assert (config.vehicle_id, config.failsafe_timeout) == (2, 5.0)
-    assert parse_broker_url(config.broker) == {
-        "host": "broker.example.org",
-        "port": 8883,
-        "tls": True,
-        "username": "boat2",
-        "password": "s@cret",
-    }
+    endpoint = config.endpoint()
+    assert (endpoint.host, endpoint.port, endpoint.tls, endpoint.username) == (
+        "broker.example.org",
+        8883,
+        True,
+        "boat2",
+    )
+    assert endpoint.password.get_secret_value() == "s@cret"
+    assert "s@cret" not in endpoint.url and "s@cret" not in repr(endpoint)  # safe to log
+    assert config.fleet_key() == b"0123456789abcdef0123456789abcdef"
     # a sensor given on the command line is relative to where it was typed, not to the file
     config = load_config(deploy / "bridge.yaml", {"sensor": "synthetic:here.csv"})
     assert config.sensor_base_dir is None and config.map_path() == deploy / "lake.json"
     assert load_config(None, {"vehicle_id": 0, "mavlink": "tcp:h:1", "map": "m.json"}).map_path() == Path(
         "m.json"
     )
+
+
+def test_a_missing_key_file_or_short_key_is_one_sentence(tmp_path):
+    import pytest
+
+    from guadal_cli.errors import GuadalError
+    from guadal_cli.vehicle.config import load_config
+
+    base = {"vehicle_id": 0, "mavlink": "tcp:h:1", "map": "m.json"}
+    with pytest.raises(GuadalError, match=r"key_file: cannot read '.*nope.key'"):
+        load_config(None, {**base, "key_file": str(tmp_path / "nope.key")})
+    (tmp_path / "short.key").write_text("abc\n")
+    with pytest.raises(GuadalError, match="key_file: the fleet key has 3 bytes; use at least 16"):
+        load_config(None, {**base, "key_file": str(tmp_path / "short.key")})

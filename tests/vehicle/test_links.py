@@ -124,7 +124,7 @@ def test_goto_through_mavproxy(broker, lake, tmp_path):
 
 def test_goto_through_the_embedded_broker(lake, tmp_path):
     """Where Mosquitto is not installed the stack runs guadal's embedded broker: the bridge works with it too."""
-    from guadal_cli.fleet.broker import start_broker
+    from guadal_cli.channel.broker import start_broker
 
     broker = start_broker("embedded")
     try:

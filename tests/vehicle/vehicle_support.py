@@ -15,7 +15,7 @@ from pathlib import Path
 
 from fleet_support import Inbox
 
-from guadal_cli.fleet import messages
+from guadal_cli.channel import protocol as messages
 from guadal_cli.graph import NavGraph
 
 GUADAL = [sys.executable, "-m", "guadal_cli"]
@@ -113,6 +113,7 @@ class Planner(Inbox):
 
     def __init__(self, broker, fleet: str, vehicle: int = 0, **kw):
         self.fleet, self.vehicle, self.seq = fleet, vehicle, 0
+        self.session = uuid.uuid4().hex[:16]
         self._seq_lock = threading.Lock()
         self._pinging = threading.Event()
         super().__init__(broker.port, **kw)
@@ -132,8 +133,23 @@ class Planner(Inbox):
             if seq is None:
                 self.seq += 1
                 seq = self.seq
+            fields.setdefault("session", self.session)
             self.raw(messages.encode(kind, seq=seq, **fields))
         return seq
+
+    def start_session(self) -> int:
+        """Make the bridge follow this planner (the first thing a planner does)."""
+        seq = self.send("start")
+        self.wait_ack(seq, "accepted", 10)
+        return seq
+
+    def publish_status(self, state: str) -> None:
+        self.client.publish(
+            messages.topic(self.fleet, None, "status"),
+            messages.encode("status", state=state, session=self.session),
+            qos=1,
+            retain=True,
+        ).wait_for_publish(5)
 
     def keep_alive(self, interval: float = 0.3) -> None:
         """Ping in the background, as a live planner does, until :meth:`stop_pinging`."""
@@ -141,7 +157,7 @@ class Planner(Inbox):
 
         def loop():
             while self._pinging.is_set():
-                self.send("ping")
+                self.send("ping", seq=self.seq)  # a ping carries the last seq, it never takes a new one
                 self._pinging_wait.wait(interval)
 
         self._pinging_wait = threading.Event()
@@ -208,12 +224,7 @@ class Stack:
         self.emulator = Emulator(home, speedup=speedup, serial=serial, max_speed=max_speed)
         self.planner = Planner(broker, self.fleet)
         if start_planner_online:
-            self.planner.client.publish(
-                messages.topic(self.fleet, None, "status"),
-                messages.encode("status", state="online"),
-                qos=1,
-                retain=True,
-            ).wait_for_publish(5)
+            self.planner.publish_status("online")
         if before_bridge is not None:
             before_bridge(self.emulator)
         self.extra: list[subprocess.Popen] = []
@@ -249,6 +260,7 @@ class Stack:
             20,
             f"bridge not online and armed (log: {self.log()})",
         )
+        self.planner.start_session()
 
     def log(self) -> str:
         self._log.flush()

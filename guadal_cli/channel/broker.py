@@ -3,13 +3,19 @@
 Both run as a separate process on a private port, so a stack (or a test) never shares a broker
 with anything else and can kill and restart it on the same port. The embedded broker is amqtt
 (a pure-Python asyncio MQTT 3.1.1 broker), so a fresh ``pip install guadal`` still runs the
-SITL demo on a machine without Mosquitto. Run it alone with
-``python -m guadal_cli.fleet.broker --port 1883``.
+SITL demo on a machine without Mosquitto.
+
+Given a fleet's :class:`~guadal_cli.channel.credentials.FleetSecrets`, both brokers refuse
+anonymous clients and enforce the same password file and ACL file (Mosquitto's own
+``password_file``/``acl_file``; the embedded broker reads them with :class:`PasswordAuth` and
+:class:`TopicAcl`). Run it alone with
+``python -m guadal_cli.channel.broker --port 1883 [--password-file F --acl-file F]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import shutil
 import signal
@@ -22,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import GuadalError
+from .credentials import FleetSecrets
 
 BROKER_KINDS = ("auto", "mosquitto", "embedded")
 
@@ -153,11 +160,14 @@ def start_broker(
     workdir: str | Path | None = None,
     timeout: float = 10.0,
     detach: bool = False,
+    secrets: FleetSecrets | None = None,
 ) -> BrokerProcess:
     """Start a private broker and return once it accepts connections.
 
     ``kind``: ``mosquitto``, ``embedded`` or ``auto`` (Mosquitto if installed). ``port`` 0 picks a
-    free one. ``detach`` lets it outlive the caller (``guadal stack up``).
+    free one. ``detach`` lets it outlive the caller (``guadal stack up``). With ``secrets``, only
+    the users of its password file get in, each limited by its ACL; without, anyone may do
+    anything (tests of the protocol itself, on loopback only).
     """
     if kind not in BROKER_KINDS:
         raise GuadalError(f"broker kind '{kind}' is unknown (allowed: {', '.join(BROKER_KINDS)}).")
@@ -173,15 +183,23 @@ def start_broker(
     wd.mkdir(parents=True, exist_ok=True)
     log_path = wd / f"broker-{port}.log"
     if chosen == "mosquitto":
+        if secrets is None:
+            access = "allow_anonymous true\n"
+        else:
+            access = (
+                f"allow_anonymous false\npassword_file {secrets.password_file}\nacl_file {secrets.acl_file}\n"
+            )
         conf = wd / f"mosquitto-{port}.conf"
         conf.write_text(
-            f"{_same_user()}listener {port} {host}\nallow_anonymous true\npersistence false\n"
+            f"{_same_user()}listener {port} {host}\n{access}persistence false\n"
             # small MQTT packets must not wait for Nagle's algorithm (40 ms per hop otherwise)
             f"set_tcp_nodelay true\nmax_packet_size 65536\nlog_dest stderr\nlog_type error\nlog_type warning\n"
         )
         cmd = [binary, "-c", str(conf)]
     else:
-        cmd = [sys.executable, "-m", "guadal_cli.fleet.broker", "--host", host, "--port", str(port)]
+        cmd = [sys.executable, "-m", "guadal_cli.channel.broker", "--host", host, "--port", str(port)]
+        if secrets is not None:
+            cmd += ["--password-file", str(secrets.password_file), "--acl-file", str(secrets.acl_file)]
     with open(log_path, "ab") as log:
         process = subprocess.Popen(
             cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, **child_options(detach)
@@ -196,14 +214,86 @@ def start_broker(
 
 
 # --- the embedded broker process ------------------------------------------------------------
-def _amqtt_config(host: str, port: int) -> dict:
+def _amqtt_config(host: str, port: int, password_file: str | None, acl_file: str | None) -> dict:
+    if password_file is None:
+        # anonymous clients, every topic allowed: a private loopback broker for protocol tests
+        plugins = {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}
+    else:
+        plugins = {
+            f"{__name__}.PasswordAuth": {"password_file": password_file},
+            f"{__name__}.TopicAcl": {"acl_file": acl_file},
+        }
     return {
         "listeners": {"default": {"type": "tcp", "bind": f"{host}:{port}", "max_connections": 256}},
         # a client silent for keepalive + 2 s is dropped (and its will published): see _expire_silent
         "timeout_disconnect_delay": 2,
-        # no $SYS tree, anonymous clients, every topic allowed: a private broker for one stack
-        "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
+        "plugins": plugins,  # and no $SYS tree
     }
+
+
+@functools.cache
+def _amqtt_plugins():
+    """The embedded broker's auth and ACL plugins (amqtt is imported only where it runs)."""
+    from dataclasses import dataclass as _dataclass
+
+    from amqtt.contexts import Action
+    from amqtt.plugins.base import BaseAuthPlugin, BaseTopicPlugin
+
+    from .credentials import parse_acl, read_password_file, verify_password
+
+    class PasswordAuth(BaseAuthPlugin):
+        """Users and ``$7$`` hashes from the same password file Mosquitto reads; no anonymous."""
+
+        @_dataclass
+        class Config:
+            password_file: str = ""
+
+        def __init__(self, context) -> None:
+            super().__init__(context)
+            self._users = read_password_file(Path(self.config.password_file))
+
+        async def authenticate(self, *, session) -> bool:
+            hashed = self._users.get(session.username or "")
+            return hashed is not None and verify_password(session.password or "", hashed)
+
+    class TopicAcl(BaseTopicPlugin):
+        """Mosquitto's ``acl_file`` rules: read = subscribe and receive, write = publish."""
+
+        @_dataclass
+        class Config:
+            acl_file: str = ""
+
+        def __init__(self, context) -> None:
+            super().__init__(context)
+            self._rules = parse_acl(Path(self.config.acl_file).read_text())
+
+        async def topic_filtering(self, *, session=None, topic=None, action=None) -> bool:
+            need = "write" if action == Action.PUBLISH else "read"
+            rules = self._rules.get(getattr(session, "username", None) or "", [])
+            return topic is not None and any(
+                access in (need, "readwrite") and topic_covered(topic, pattern) for access, pattern in rules
+            )
+
+    return PasswordAuth, TopicAcl
+
+
+def topic_covered(name: str, pattern: str) -> bool:
+    """Whether topic (or subscription filter) ``name`` lies within ACL ``pattern`` (+ and # wildcards)."""
+    want, allowed = name.split("/"), pattern.split("/")
+    for i, level in enumerate(allowed):
+        if level == "#":
+            return True
+        if i >= len(want) or want[i] == "#":
+            return False  # shorter, or a wider subscription than allowed
+        if level != "+" and want[i] != level:
+            return False  # also a "+" asked where one name is allowed
+    return len(want) == len(allowed)
+
+
+def __getattr__(name: str):
+    if name in ("PasswordAuth", "TopicAcl"):
+        return dict(zip(("PasswordAuth", "TopicAcl"), _amqtt_plugins()))[name]
+    raise AttributeError(name)
 
 
 def _expire_silent_clients() -> None:
@@ -222,7 +312,7 @@ def _expire_silent_clients() -> None:
     BrokerProtocolHandler.handle_read_timeout = expire
 
 
-def run_embedded(host: str, port: int) -> None:
+def run_embedded(host: str, port: int, password_file: str | None = None, acl_file: str | None = None) -> None:
     """Serve until SIGTERM/SIGINT (blocking)."""
     import asyncio
     import logging
@@ -235,7 +325,7 @@ def run_embedded(host: str, port: int) -> None:
     _expire_silent_clients()
 
     async def serve() -> None:
-        broker = Broker(_amqtt_config(host, port))
+        broker = Broker(_amqtt_config(host, port, password_file, acl_file))
         await broker.start()
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
@@ -250,12 +340,16 @@ def run_embedded(host: str, port: int) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python -m guadal_cli.fleet.broker", description="guadal's embedded MQTT broker"
+        prog="python -m guadal_cli.channel.broker", description="guadal's embedded MQTT broker"
     )
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=1883)
+    parser.add_argument("--password-file", help="users and $7$ hashes (Mosquitto's password_file format)")
+    parser.add_argument("--acl-file", help="topic rules per user (Mosquitto's acl_file format)")
     args = parser.parse_args(argv)
-    run_embedded(args.host, args.port)
+    if (args.password_file is None) != (args.acl_file is None):
+        parser.error("--password-file and --acl-file go together")
+    run_embedded(args.host, args.port, args.password_file, args.acl_file)
 
 
 if __name__ == "__main__":
