@@ -44,7 +44,8 @@ from .sensors import SensorError
 
 log = logging.getLogger("guadal.bridge")
 
-MODE_RETRY_S = 1.5  # re-ask for a mode that the heartbeat does not show yet
+MODE_RETRY_S = 1.5
+WP_RADIUS_RETRY_S = 5.0  # PARAM_REQUEST_READ again until the autopilot answers  # re-ask for a mode that the heartbeat does not show yet
 MODE_GIVE_UP = 8  # requests before a mode change is reported as failed
 TARGET_RESEND_S = 2.0  # guided targets are not acknowledged: repeat them (idempotent)
 STATUS_REFRESH_S = 15.0
@@ -87,6 +88,7 @@ class Goal:
     sent_at: float = 0.0  # monotonic time the current waypoint was last sent
     sent_position_count: int = -1  # position fixes seen when the current waypoint was first sent
     seen_guided: bool = False
+    autopilot_reached: bool = False  # MISSION_ITEM_REACHED came for the current waypoint
 
     @property
     def active(self) -> bool:
@@ -135,6 +137,8 @@ class Bridge:
         self._status_at = 0.0
         self._sensor_jobs: queue.Queue = queue.Queue()
         self.link_lost = False
+        self.wp_radius: float | None = None  # the autopilot's WP_RADIUS, once it has told us
+        self._wp_radius_asked = -1e9
         self.topic_command = messages.topic(self.fleet, self.vid, "command")
         self.topic_planner = messages.topic(self.fleet, None, "status")
         self.mqtt = self._make_channel()
@@ -505,6 +509,8 @@ class Bridge:
                     self.goal.sent_at = 0.0  # resend at the next tick (GUIDED may not be on yet)
         elif kind == "MISSION_ITEM_REACHED":
             self._on_reached_message()
+        elif kind == "PARAM_VALUE":
+            self._on_param(msg)
         elif kind == "STATUSTEXT":
             text = msg.text.strip() if isinstance(msg.text, str) else str(msg.text)
             if msg.severity <= mavlink.MAV_SEVERITY_WARNING:
@@ -512,6 +518,32 @@ class Bridge:
                 log.warning("autopilot: %s", text)
             else:
                 log.info("autopilot: %s", text)
+
+    def _on_param(self, msg) -> None:
+        name = (
+            msg.param_id.rstrip("\x00")
+            if isinstance(msg.param_id, str)
+            else msg.param_id.decode().rstrip("\x00")
+        )
+        if name != "WP_RADIUS" or not 0 < float(msg.param_value) < 1000:
+            return
+        radius, before = float(msg.param_value), self.wp_radius
+        self.wp_radius = radius
+        if radius != before and radius > self.config.arrival_radius:
+            log.warning(
+                "the autopilot's WP_RADIUS is %.1f m, larger than the bridge's arrival radius %.1f m: it stops "
+                "up to %.1f m short, so its MISSION_ITEM_REACHED is accepted within %.1f m",
+                radius,
+                self.config.arrival_radius,
+                radius,
+                radius,
+            )
+
+    def _ask_wp_radius(self, now: float) -> None:
+        """WP_RADIUS decides where the autopilot stops: ask until it answers (and after a reboot)."""
+        if self.wp_radius is None and now - self._wp_radius_asked >= WP_RADIUS_RETRY_S:
+            self._wp_radius_asked = now
+            self.link.request_param("WP_RADIUS")
 
     def _on_reached_message(self) -> None:
         goal = self.goal
@@ -527,6 +559,7 @@ class Bridge:
                 goal.index,
             )
             return
+        goal.autopilot_reached = True
         if goal.final:
             self._check_arrival(s, reached_message=True)
         else:
@@ -553,6 +586,7 @@ class Bridge:
     def _advance(self) -> None:
         goal = self.goal
         goal.index += 1
+        goal.autopilot_reached = False
         goal.sent_position_count = -1
         goal.sent_at = 0.0
         log.debug("waypoint %d/%d", goal.index + 1, len(goal.waypoints))
@@ -566,7 +600,11 @@ class Bridge:
         d = self._distance(s, goal.waypoint)
         if d is None:
             return
-        if d <= self.config.arrival_radius:
+        # the autopilot says it arrived: within its own WP_RADIUS, which may be the larger one
+        radius = self.config.arrival_radius
+        if (reached_message or goal.autopilot_reached) and self.wp_radius is not None:
+            radius = max(radius, self.wp_radius)
+        if d <= radius:
             if not goal.final:
                 self._advance()
                 return
@@ -577,9 +615,7 @@ class Bridge:
             self.publish_status()
         elif reached_message:
             log.info(
-                "autopilot reports arrival %.1f m from the target; waiting to be within %.1f m",
-                d,
-                self.config.arrival_radius,
+                "autopilot reports arrival %.1f m from the target; waiting to be within %.1f m", d, radius
             )
 
     def drive(self) -> None:
@@ -648,6 +684,7 @@ class Bridge:
         elif self.link_lost and not lost:
             log.info("autopilot heard again; asking for its telemetry streams")
             self.request_streams()
+            self.wp_radius = None  # it may have rebooted with other parameters
         self.link_lost = lost
         if (
             self.last_contact is not None
@@ -655,6 +692,7 @@ class Bridge:
             and now - self.last_contact > self.config.failsafe_timeout
         ):
             self.trigger_failsafe(f"no planner message for {self.config.failsafe_timeout:g} s")
+        self._ask_wp_radius(now)
         self._pursue_mode()
         self._pursue_arming(now)
         self.drive()

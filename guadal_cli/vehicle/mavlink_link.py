@@ -34,7 +34,7 @@ POSITION_TARGET_MASK = 0x0FF8
 RESULT_NAMES = {k: v.name.replace("MAV_RESULT_", "") for k, v in mavlink.enums["MAV_RESULT"].items()}
 COMMAND_NAMES = {k: v.name.replace("MAV_CMD_", "") for k, v in mavlink.enums["MAV_CMD"].items()}
 #: messages whose arrival the bridge reacts to, beyond keeping the state current
-EVENT_TYPES = {"COMMAND_ACK", "MISSION_ACK", "MISSION_ITEM_REACHED", "STATUSTEXT"}
+EVENT_TYPES = {"COMMAND_ACK", "MISSION_ACK", "MISSION_ITEM_REACHED", "STATUSTEXT", "PARAM_VALUE"}
 
 
 def mode_name(number: int | None) -> str:
@@ -217,6 +217,13 @@ class AutopilotLink:
 
     def arm(self) -> None:
         self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+
+    def request_param(self, name: str) -> None:
+        """PARAM_REQUEST_READ by name; the autopilot answers with PARAM_VALUE."""
+        with self._lock:
+            self.master.mav.param_request_read_send(
+                self.target_system, self.target_component, name.encode(), -1
+            )
 
     def request_interval(self, message_id: int, hz: float) -> None:
         self.command_long(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, message_id, 1e6 / hz)

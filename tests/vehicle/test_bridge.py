@@ -160,6 +160,43 @@ def test_older_seq_is_ignored_and_counted(shared, planner):
     assert shared_status(shared)["goal"] == {"seq": newest, "node": here, "status": "reached"}
 
 
+def test_a_ping_never_makes_an_outstanding_command_look_old(shared, planner):
+    """The planner pings while it waits, then asks its last goto again to read the boat's clock."""
+    g = shared.graph
+    target = g.node_at(3, 2)
+    seq = planner.goto(target, g)
+    planner.wait_ack(seq, "reached", 20)
+    before = shared_status(shared)["counters"]["stale_seq"]
+    planner.send("ping", seq=seq)  # as the planner's keep-alive does
+    planner.send("ping", seq=seq + 5)  # even a ping ahead of the last command moves nothing
+    planner.send("goto", seq=seq, node=target, lat=float(g.lat[target]), lon=float(g.lon[target]))
+    planner.wait(lambda: len(planner.acks(seq, "reached")) == 2, 5, "the repeated goto was not answered")
+    status = shared_status(shared)
+    assert status["last_seq"] == seq and status["counters"]["stale_seq"] == before
+
+
+def test_other_sessions_and_far_ahead_seqs_are_refused_and_counted(shared, planner):
+    g = shared.graph
+    lure = g.node_at(5, 7)
+    where = {"node": lure, "lat": float(g.lat[lure]), "lon": float(g.lon[lure])}
+    before = shared_status(shared)["counters"]
+    planner.send("goto", seq=planner.seq + 10**9, **where)  # once, a huge seq took the boat for good
+    planner.send("goto", session="f" * 16, seq=planner.seq + 1, **where)  # another planner's
+    planner.send("start", session="e" * 16)  # an unsigned new session while this one is active
+    planner.wait_status(
+        lambda st: (
+            st["counters"]["seq_ahead"] == before["seq_ahead"] + 1
+            and st["counters"]["foreign_session"] == before["foreign_session"] + 2
+        ),
+        5,
+        "the refused commands were not counted",
+    )
+    assert not planner.acks(status="accepted")
+    assert shared_status(shared)["session"] == planner.session
+    home = g.node_at(3, 2)
+    planner.wait_ack(planner.goto(home, g), "reached", 20)  # the planner is obeyed as before
+
+
 def test_bad_payloads_are_counted_and_the_bridge_keeps_answering(shared, planner):
     before = shared_status(shared)["counters"]
     planner.raw(b"{not json")
@@ -273,6 +310,20 @@ def test_sigterm_stops_cleanly_with_offline_status_and_hold(shared, planner):
     shared.emulator.heartbeat(lambda hb: hb.custom_mode == HOLD, 5, "the boat was not put in HOLD on exit")
     log = shared.log()
     assert "Traceback" not in log and "bridge for vehicle 0 stopped" in log
+
+
+def test_a_wp_radius_larger_than_the_arrival_radius_ends_every_hop(stack, lake):
+    """ArduPilot stops within WP_RADIUS (3 m here) and says MISSION_ITEM_REACHED; the bridge
+    (arrival radius 2 m) reads WP_RADIUS and accepts that arrival instead of re-sending forever."""
+    g = lake[1]
+    s = stack(g.node_at(1, 1), before_bridge=lambda emu: emu.set_param("WP_RADIUS", 3.0))
+    p = s.planner
+    for node in (g.node_at(1, 3), g.node_at(3, 3), g.node_at(3, 1)):  # 10 m hops, a corner between
+        seq = p.goto(node, g)
+        reached = p.wait_ack(seq, "reached", 20)
+        gap = haversine_m(reached["lat"], reached["lon"], float(g.lat[node]), float(g.lon[node]))
+        assert gap <= 3.0 + 0.2
+    assert "WP_RADIUS is 3.0 m, larger than the bridge's arrival radius 2.0 m" in s.log()
 
 
 # --- failsafe --------------------------------------------------------------------------------------

@@ -97,6 +97,19 @@ class Emulator:
                 return msg
         raise AssertionError(f"{what} within {timeout} s")
 
+    def set_param(self, name: str, value: float) -> None:
+        """PARAM_SET from outside the bridge (a ground station), confirmed by PARAM_VALUE."""
+        import time
+
+        self.heartbeat(lambda hb: True, 5, "no heartbeat from the emulator")  # learn its UDP address
+        self.stream.mav.param_set_send(1, 1, name.encode(), value, 9)
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline:
+            msg = self.stream.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.5)
+            if msg is not None and msg.param_id == name and msg.param_value == value:
+                return
+        raise AssertionError(f"the emulator did not confirm {name} = {value}")
+
     def set_mode(self, mode: int) -> None:
         """Change the boat's mode from outside the bridge (a ground station, an RC switch)."""
         self.heartbeat(lambda hb: True, 5, "no heartbeat from the emulator")  # learn its UDP address
