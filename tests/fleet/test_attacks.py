@@ -10,18 +10,21 @@ is still not booked while the boat's own telemetry says it is elsewhere.
 
 from __future__ import annotations
 
+import json
 import threading
 
 import pytest
+import yaml
 from fleet_support import Inbox, login, wait_for
-from support import LAKE
+from support import LAKE, base_mission, run_cli
 
 from guadal_cli.channel import protocol as msg
 from guadal_cli.channel.broker import mosquitto_binary
 from guadal_cli.fleet.remote import RemoteFleet, SitlConfig
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import load_map
-from guadal_cli.mission import auto_positions
+from guadal_cli.mission import auto_positions, prepare
+from guadal_cli.runner import MissionRunner
 from guadal_cli.stack import Stack
 
 N = 2
@@ -231,3 +234,91 @@ def test_a_restarted_bridge_and_a_restarted_planner_resynchronise(graph, stack):
             second.close()
     finally:
         first.close()
+
+
+def test_operator_controls_reach_the_planner_once_and_only_from_the_operator(graph, stack):
+    start = auto_positions(graph, N)
+    fleet = make_fleet(graph, stack)
+    operator = Inbox(stack.broker_port, login=login(stack, "operator"))
+    boat = Inbox(stack.broker_port, login=login(stack, "vehicle-0"))  # may not write controls
+    key = msg.Codec(stack.secrets.key_file.read_text().strip().encode())
+    control = msg.topic("guadal", None, "control")
+    try:
+        fleet.reset(start)
+        session = fleet.session
+        sent = [
+            key.encode(control, "control", session=session, id="a", action="pause"),
+            key.encode(control, "control", session=session, id="a", action="pause"),  # repeated: once
+            key.encode(control, "control", session="0" * 16, id="b", action="abort"),  # an earlier run's
+            msg.encode("control", session=session, id="c", action="abort"),  # unsigned
+            key.encode(control, "control", session=session, id="d", action="hold", vehicle=9),  # no such boat
+            key.encode(control, "control", session=session, id="e", action="hold", vehicle=1),
+        ]
+        boat.client.publish(
+            control, key.encode(control, "control", session=session, id="x", action="abort"), qos=1
+        )
+        for payload in sent:
+            operator.client.publish(control, payload, qos=1).wait_for_publish(10)
+        got: list = []
+        wait_for(
+            lambda: got.extend(fleet.pending_controls()) or len(got) >= 2, 10, "the controls did not arrive"
+        )
+        assert got == [
+            {"action": "pause", "vehicle": None, "id": "a"},
+            {"action": "hold", "vehicle": 1, "id": "e"},
+        ]
+        assert fleet.pending_controls() == []
+        dropped = fleet.health()["dropped_messages"]
+        assert dropped["foreign_session"] >= 1 and dropped["unsigned"] >= 1 and dropped["malformed"] >= 1
+    finally:
+        operator.close()
+        boat.close()
+        fleet.close()
+
+
+def test_no_secret_reaches_the_logs_the_run_directory_or_the_manifest(graph, stack, tmp_path):
+    """`guadal run` against the stack as its planner user, as `guadal stack up` prints it."""
+    mission = base_mission(backend={**stack.planner_backend(), "offline_grace": 20})
+    mission["fleet"].update(vehicles=N, max_distance=20.0)
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(mission))
+    result = run_cli("run", path, "-o", tmp_path / "run")
+    assert result.returncode == 0, result.stderr
+    manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
+    assert manifest["status"] == "complete" and manifest["fleet"]["session"]
+    secrets = [stack.secrets.key_file.read_text().strip()] + [
+        p.read_text().strip() for p in (stack.secrets.directory / "users").iterdir()
+    ]
+    texts = [result.stdout, result.stderr] + [
+        p.read_text(errors="replace") for p in (tmp_path / "run").rglob("*") if p.is_file()
+    ]
+    texts += [p.read_text(errors="replace") for p in (stack.state_dir / "logs").glob("*.log")]
+    for secret in secrets:
+        assert not any(secret in text for text in texts)
+
+
+def test_a_mission_whose_every_boat_is_lost_ends_aborted(graph, stack, tmp_path):
+    """Last in the module: it stops every bridge."""
+    mission = base_mission(backend={**stack.planner_backend(), "offline_grace": 1.0})
+    mission["fleet"].update(vehicles=N, max_distance=400.0)
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(mission))
+    out = tmp_path / "run"
+    runner = MissionRunner(prepare(path), output=out)
+    outcome: dict = {}
+    thread = threading.Thread(target=lambda: outcome.update(result=runner.run()))
+    thread.start()
+    wait_for(
+        lambda: (out / "metrics.csv").is_file() and len((out / "metrics.csv").read_text().splitlines()) > 2,
+        60,
+        "the mission did not start",
+    )
+    for p in stack.processes:
+        if p.name.startswith("bridge-"):
+            p.signal(15)  # SIGTERM: each bridge holds its boat and says offline
+    thread.join(60)
+    assert not thread.is_alive() and outcome["result"].status == "aborted"
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["status"] == "aborted"
+    assert manifest["stop_reason"].startswith("every vehicle was lost: vehicle 0 went offline")
+    assert len(manifest["fleet"]["problems"]) == N

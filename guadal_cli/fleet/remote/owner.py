@@ -20,6 +20,7 @@ import uuid
 from collections import Counter
 from collections.abc import Callable
 from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 
 from ...channel import protocol as msg
 from ...channel.client import Channel
@@ -88,7 +89,13 @@ class FleetOwner:
                 return fn()
         future: Future = Future()
         self.inbox.put(("call", fn, future))
-        return future.result()
+        while True:
+            try:
+                return future.result(timeout=0.5)
+            except FutureTimeout:
+                if not self._thread.is_alive() and not future.done():  # stopped under our feet
+                    with self.cond:
+                        return fn()
 
     def wait(self, predicate: Callable[[], bool], timeout: float) -> bool:
         deadline = time.monotonic() + timeout
@@ -108,6 +115,7 @@ class FleetOwner:
             except queue.Empty:
                 event = None
             if event is not None and event[0] == "stop":
+                self._drain_calls()
                 return
             with self.cond:
                 if event is not None:
@@ -117,6 +125,17 @@ class FleetOwner:
                 except Exception as exc:  # a bug here must not stop the fleet
                     self._drop("error", f"keep-alive: {type(exc).__name__}: {exc}")
                 self.cond.notify_all()
+
+    def _drain_calls(self) -> None:
+        """Requests that raced with stop still get an answer (run here, the loop's last act)."""
+        while True:
+            try:
+                event = self.inbox.get_nowait()
+            except queue.Empty:
+                return
+            if event[0] == "call":
+                with self.cond:
+                    self._dispatch(event)
 
     def _dispatch(self, event: tuple) -> None:
         kind = event[0]
