@@ -11,6 +11,7 @@ from .commands import map as map_cmd
 from .commands import mission as mission_cmd
 from .commands import plugins as plugins_cmd
 from .commands import report as report_cmd
+from .commands import resume as resume_cmd
 from .commands import sitl as sitl_cmd
 from .commands import stack as stack_cmd
 from .commands import sweep as sweep_cmd
@@ -40,6 +41,7 @@ def _root(
 
 
 mission_cmd.register(app)
+resume_cmd.register(app)
 plugins_cmd.register(app)
 map_cmd.register(app)
 sitl_cmd.register(app)

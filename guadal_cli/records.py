@@ -13,12 +13,18 @@ Layout (format ``guadal-run`` version 1, described for users in ``docs/run-direc
 ``interrupted`` or ``failed`` at the end. A directory still saying ``running`` after its
 process is gone was killed. Wall-clock times live only in the manifest so that the CSVs of
 the same mission and seed are identical byte for byte at ``sim`` level.
+
+The writing process holds an exclusive lock on ``run.lock`` for as long as it writes, and the
+kernel drops it however the process ends (even ``kill -9``): that is how ``guadal resume`` tells
+a run that was killed from one that is still going. :meth:`RunRecorder.reopen` cuts the CSVs
+back to their last complete step and goes on appending from there.
 """
 
 from __future__ import annotations
 
 import csv
 import datetime as _dt
+import fcntl
 import hashlib
 import json
 import os
@@ -59,13 +65,14 @@ def file_sha256(path: Path) -> str:
 
 
 class _CsvStream:
-    """An append-only CSV that flushes every row batch."""
+    """An append-only CSV that flushes every row batch (``append``: go on after existing rows)."""
 
-    def __init__(self, path: Path, columns: Sequence[str]):
+    def __init__(self, path: Path, columns: Sequence[str], append: bool = False):
         self.columns = list(columns)
-        self._fh = open(path, "w", newline="", encoding="utf-8")
+        self._fh = open(path, "a" if append else "w", newline="", encoding="utf-8")
         self._writer = csv.writer(self._fh, lineterminator="\n")
-        self._writer.writerow(self.columns)
+        if not append:
+            self._writer.writerow(self.columns)
         self._fh.flush()
 
     def write(self, rows: Iterable[Sequence]) -> None:
@@ -79,8 +86,91 @@ class _CsvStream:
             self._fh.close()
 
 
+LOCK_NAME = "run.lock"
+CSV_FILES = {
+    "metrics.csv": None,
+    "trajectory.csv": TRAJECTORY_COLUMNS,
+    "measurements.csv": MEASUREMENT_COLUMNS,
+}
+
+
+def _hold_lock(directory: Path):
+    """The exclusive writer's lock of a run directory (released by the kernel when we die)."""
+    fh = open(directory / LOCK_NAME, "a")
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        fh.close()
+        raise GuadalError(
+            f"run directory '{directory}' is being written by another guadal process right now; "
+            "wait for it to end or stop it first."
+        ) from None
+    return fh
+
+
+def read_manifest(directory: Path) -> dict:
+    """A run directory's manifest, or one sentence saying why it is not one."""
+    path = Path(directory) / "manifest.json"
+    if not path.is_file():
+        raise GuadalError(f"'{directory}' is not a run directory: it holds no manifest.json.")
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise GuadalError(f"'{path}' is not readable JSON ({exc}).") from exc
+    if not isinstance(manifest, dict) or manifest.get("format") != RUN_FORMAT:
+        raise GuadalError(f"'{path}' is not a guadal run manifest: 'format' must be '{RUN_FORMAT}'.")
+    return manifest
+
+
+def _step_of(line: bytes, n_columns: int) -> int | None:
+    """The step of one complete CSV row, or None for a torn or foreign line."""
+    if not line.endswith(b"\n"):
+        return None
+    cells = line.rstrip(b"\n").split(b",")
+    if len(cells) != n_columns:
+        return None
+    try:
+        return int(cells[0])
+    except ValueError:
+        return None
+
+
+def cut_to_last_step(directory: Path, metric_columns: Sequence[str]) -> int:
+    """Cut the CSVs of an interrupted run back to its last complete step, and return that step.
+
+    A step is complete when its metrics row is (it is written last). Anything after it, a torn
+    last line included, is what the interrupted process was writing; it is dropped and written
+    again on resume. Returns -1 when not even step 0 was recorded (the CSVs keep their header).
+    """
+    columns = {**CSV_FILES, "metrics.csv": list(metric_columns)}
+    last = -1
+    for name in ("metrics.csv", "trajectory.csv", "measurements.csv"):
+        path = Path(directory) / name
+        header = (",".join(columns[name]) + "\n").encode()
+        data = path.read_bytes() if path.is_file() else b""
+        if not data.startswith(header):
+            path.write_bytes(header)
+            continue
+        keep = len(header)
+        for line in data[len(header) :].splitlines(keepends=True):
+            step = _step_of(line, len(columns[name]))
+            if step is None or (name != "metrics.csv" and step > last):
+                break
+            if name == "metrics.csv":
+                last = step
+            keep += len(line)
+        if keep < len(data):
+            with open(path, "r+b") as fh:
+                fh.truncate(keep)
+    return last
+
+
 class RunRecorder:
-    """Creates a run directory and appends to it step by step."""
+    """Creates a run directory and appends to it step by step.
+
+    Steps up to ``replay_until`` are already on disk (a resumed run replays them): writing them
+    again is skipped, so a resumed run's CSVs are those of an uninterrupted one.
+    """
 
     def __init__(
         self, directory: Path, resolved_mission: dict, manifest: dict, metric_columns: Sequence[str]
@@ -90,8 +180,15 @@ class RunRecorder:
             raise GuadalError(
                 f"output directory '{directory}' already exists and is not empty; choose another with --output."
             )
-        directory.mkdir(parents=True, exist_ok=True)
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise GuadalError(
+                f"cannot create the run directory '{directory}': {exc.strerror or exc}."
+            ) from exc
         self.directory = directory
+        self._lock = _hold_lock(directory)
+        self.replay_until = -1
         self.manifest = {
             "format": RUN_FORMAT,
             "version": RUN_VERSION,
@@ -105,12 +202,44 @@ class RunRecorder:
             "steps": 0,
             "error": None,
             "metric_columns": list(metric_columns),
+            "resumes": [],
         }
         (directory / "mission.resolved.yaml").write_text(yaml.safe_dump(resolved_mission, sort_keys=False))
         self._write_manifest()
-        self.metrics = _CsvStream(directory / "metrics.csv", metric_columns)
-        self.trajectory = _CsvStream(directory / "trajectory.csv", TRAJECTORY_COLUMNS)
-        self.measurements = _CsvStream(directory / "measurements.csv", MEASUREMENT_COLUMNS)
+        self._open_streams(append=False)
+
+    @classmethod
+    def reopen(cls, directory: Path, metric_columns: Sequence[str]) -> RunRecorder:
+        """Go on writing an interrupted run; its manifest records this resume."""
+        self = cls.__new__(cls)
+        self.directory = Path(directory)
+        self._lock = _hold_lock(self.directory)
+        self.manifest = read_manifest(self.directory)
+        if self.manifest.get("metric_columns") != list(metric_columns):
+            raise GuadalError(
+                f"cannot resume '{directory}': its metrics.csv columns are not those this mission writes "
+                "(the mission or its plugins changed since the run began)."
+            )
+        self.replay_until = cut_to_last_step(self.directory, metric_columns)
+        (self.directory / "fields.csv").unlink(missing_ok=True)  # written anew when the run ends
+        self.manifest.setdefault("resumes", []).append(
+            {
+                "after_step": self.replay_until,
+                "previous_status": self.manifest.get("status"),
+                "previous_error": self.manifest.get("error"),
+                "started_at": now_iso(),
+            }
+        )
+        self.manifest.update(status="running", ended_at=None, error=None, steps=max(self.replay_until, 0))
+        self._write_manifest()
+        self._open_streams(append=True)
+        return self
+
+    def _open_streams(self, append: bool) -> None:
+        d = self.directory
+        self.metrics = _CsvStream(d / "metrics.csv", self.manifest["metric_columns"], append)
+        self.trajectory = _CsvStream(d / "trajectory.csv", TRAJECTORY_COLUMNS, append)
+        self.measurements = _CsvStream(d / "measurements.csv", MEASUREMENT_COLUMNS, append)
 
     def _write_manifest(self) -> None:
         tmp = self.directory / "manifest.json.partial"
@@ -118,13 +247,16 @@ class RunRecorder:
         tmp.replace(self.directory / "manifest.json")
 
     def write_step(self, step: int, metrics: dict, trajectory_rows: list, measurement_rows: list) -> None:
+        self.manifest["steps"] = step
+        if step <= self.replay_until:
+            return  # on disk already
         self.trajectory.write(trajectory_rows)
         self.measurements.write(measurement_rows)
         self.metrics.write([[metrics[c] for c in self.metrics.columns]])
-        self.manifest["steps"] = step
 
-    def write_track(self, rows: list) -> None:
-        self.trajectory.write(rows)
+    def write_track(self, step: int, rows: list) -> None:
+        if step > self.replay_until:
+            self.trajectory.write(rows)
 
     def write_fields(self, graph, ground_truth, fields: dict) -> None:
         """Final per-node maps (truth, mean, std, ...) for reports and plots."""
@@ -143,3 +275,4 @@ class RunRecorder:
             stream.close()
         self.manifest.update(status=status, ended_at=now_iso(), error=error, **(extra or {}))
         self._write_manifest()
+        self._lock.close()

@@ -24,6 +24,7 @@ from .fleet.base import Fleet, Measurement
 from .mission import Prepared
 from .planners.base import SEQUENTIAL
 from .records import RunRecorder
+from .resume import ReplayFleet, read_record
 
 #: steps a vehicle may wait for a blocked node before it looks for another way round
 _WAIT_BEFORE_REROUTE = 2
@@ -86,9 +87,15 @@ class MissionRunner:
     """Composes the plugins of a prepared mission and runs it into a run directory."""
 
     def __init__(
-        self, prep: Prepared, output: Path | None = None, on_step: Callable[[int, Fleet], None] | None = None
+        self,
+        prep: Prepared,
+        output: Path | None = None,
+        on_step: Callable[[int, Fleet], None] | None = None,
+        resume: bool = False,
     ):
+        """``resume``: ``output`` is an interrupted run of this mission; replay it and go on."""
         self.prep = prep
+        self.resume = resume
         self.mission = prep.mission
         self.graph = prep.graph
         self.output = Path(output) if output else default_run_dir(prep)
@@ -123,6 +130,7 @@ class MissionRunner:
             "mode": prep.mode,
             "vehicles": self.n,
             "mission_file": str(prep.path),
+            "mission_dir": str(prep.base_dir),
             "map": {"path": str(prep.map.source), "name": prep.map.name, **prep.map.summary()},
             "plugins": plugin_info,
         }
@@ -158,8 +166,11 @@ class MissionRunner:
         track = fleet.track_rows()
         if track:
             self.recorder.write_track(
-                (self.step, r["vehicle"], "", "", "", r["lat"], r["lon"], "", "gps", r["time_s"])
-                for r in track
+                self.step,
+                [
+                    (self.step, r["vehicle"], "", "", "", r["lat"], r["lon"], "", "gps", r["time_s"])
+                    for r in track
+                ],
             )
         self.last_metrics = row
         self.on_step(self.step, fleet)
@@ -243,12 +254,11 @@ class MissionRunner:
     # --- the loop ----------------------------------------------------------------------------
     def run(self) -> RunResult:
         prep = self.prep
-        self.recorder = RunRecorder(
-            self.output,
-            prep.resolved_dict(),
-            self._manifest(),
-            metric_columns(self.n, self.environment.metric_names),
-        )
+        columns = metric_columns(self.n, self.environment.metric_names)
+        if self.resume:
+            self.recorder = RunRecorder.reopen(self.output, columns)
+        else:
+            self.recorder = RunRecorder(self.output, prep.resolved_dict(), self._manifest(), columns)
         previous_term = signal.getsignal(signal.SIGTERM)
 
         def _on_term(signum, frame):
@@ -264,6 +274,11 @@ class MissionRunner:
             fleet = self.backend.make_fleet(
                 graph=self.graph, fleet_config=self.mission.fleet, sensor=self.environment.sense, mission=prep
             )
+            if self.recorder.replay_until >= 0:
+                record = read_record(self.output, self.recorder.replay_until)
+                fleet = ReplayFleet(
+                    fleet, record, self.graph, self.mission.fleet, self.environment.sense, str(self.output)
+                )
             fleet.reset(prep.initial_nodes)
             first = fleet.take_measurement()
             self.environment.update(first)

@@ -30,50 +30,10 @@ def register(app: typer.Typer) -> None:
         from ..runner import MissionRunner
 
         try:
-            prep = prepare(mission, seed=seed)
+            runner = MissionRunner(prepare(mission, seed=seed), output=output)
         except GuadalError as exc:
             raise fail(exc)
-        budget = prep.mission.fleet.max_distance * prep.mission.fleet.vehicles
-        show = not (quiet or as_json)
-        progress = Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            TextColumn("{task.fields[status]}"),
-            TimeElapsedColumn(),
-            console=console,
-            disable=not show,
-            transient=False,
-        )
-        task = progress.add_task(prep.mission.name, total=budget, status="")
-
-        def on_step(step: int, fleet) -> None:
-            progress.update(task, completed=sum(fleet.distances.values()), status=f"step {step}")
-
-        runner = None
-        try:
-            runner = MissionRunner(prep, output=output, on_step=on_step)
-            with progress:
-                result = runner.run()
-        except KeyboardInterrupt:
-            if runner is not None and runner.output.exists():
-                console.print(f"[yellow]interrupted[/]: partial results kept in {runner.output}")
-            raise typer.Exit(130)
-        except GuadalError as exc:
-            raise fail(exc)
-        if as_json:
-            print_json(
-                {
-                    "directory": str(result.directory),
-                    "status": result.status,
-                    "steps": result.steps,
-                    "metrics": result.final_metrics,
-                }
-            )
-        elif not quiet:
-            print_mapping(
-                f"{prep.mission.name}: {result.status} after {result.steps} steps", result.final_metrics
-            )
-            console.print(f"run directory: {result.directory}")
+        run_with_progress(runner, quiet=quiet, as_json=as_json)
 
     @app.command("validate")
     def validate(
@@ -105,3 +65,49 @@ def register(app: typer.Typer) -> None:
         from ..mission import json_schema
 
         print_json(json_schema())
+
+
+def run_with_progress(runner, quiet: bool, as_json: bool) -> None:
+    """Run (or resume) a mission with a progress bar, then print its result; Ctrl-C keeps the run."""
+    mission = runner.mission
+    budget = mission.fleet.max_distance * mission.fleet.vehicles
+    show = not (quiet or as_json)
+    progress = Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.fields[status]}"),
+        TimeElapsedColumn(),
+        console=console,
+        disable=not show,
+        transient=False,
+    )
+    task = progress.add_task(mission.name, total=budget, status="")
+
+    def on_step(step: int, fleet) -> None:
+        progress.update(task, completed=sum(fleet.distances.values()), status=f"step {step}")
+
+    runner.on_step = on_step
+    try:
+        with progress:
+            result = runner.run()
+    except KeyboardInterrupt:
+        if runner.output.exists():
+            console.print(
+                f"[yellow]interrupted[/]: partial results kept in {runner.output} "
+                f"(go on with: guadal resume {runner.output})"
+            )
+        raise typer.Exit(130)
+    except GuadalError as exc:
+        raise fail(exc)
+    if as_json:
+        print_json(
+            {
+                "directory": str(result.directory),
+                "status": result.status,
+                "steps": result.steps,
+                "metrics": result.final_metrics,
+            }
+        )
+    elif not quiet:
+        print_mapping(f"{mission.name}: {result.status} after {result.steps} steps", result.final_metrics)
+        console.print(f"run directory: {result.directory}")

@@ -16,6 +16,8 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
+from ..errors import GuadalError
+
 
 @dataclass(frozen=True)
 class Measurement:
@@ -91,6 +93,15 @@ class Fleet(ABC):
         last call, each once; the runner polls this between steps. None in simulation; see
         ``docs/protocol.md`` for the remote levels."""
         return []
+
+    @property
+    def synthetic_measurements(self) -> bool:
+        """True when samples come from the environment's synthetic sensor (always at ``sim``)."""
+        return True
+
+    def restore(self, positions: Mapping[int, int], distances: Mapping[int, float], time_s: float) -> None:
+        """Take over a resumed run: vehicles at ``positions`` having covered ``distances``, clock at ``time_s``."""
+        raise GuadalError(f"the {type(self).__name__} cannot take over a resumed run.")
 
     def health(self) -> dict:
         """Faults met on the way (messages dropped, vehicles lost), for the run manifest."""

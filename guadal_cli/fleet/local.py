@@ -79,16 +79,25 @@ class LocalFleet(Fleet):
             longest = max(longest, self.vehicles[vid].step_towards(int(target)))
         self._time += longest / self.speed
         reached = {vid: self.vehicles[vid].node == int(t) for vid, t in targets.items()}
-        done = {v.id: self._cannot_move(v) for v in self.vehicles}
+        done = self.stuck()
         for vid in targets:
             reached[vid] = reached[vid] or done[vid]
         return reached, done
+
+    def stuck(self) -> dict[int, bool]:
+        """Per vehicle: True when no neighbour lies within its remaining budget."""
+        return {v.id: self._cannot_move(v) for v in self.vehicles}
 
     def _cannot_move(self, vehicle: Vehicle) -> bool:
         nbrs = self.graph.neighbors(vehicle.node)
         return (
             not nbrs or min(self.graph.edge_length(vehicle.node, n) for n in nbrs) > vehicle.remaining + 1e-9
         )
+
+    def restore(self, positions: Mapping[int, int], distances: Mapping[int, float], time_s: float) -> None:
+        for vehicle in self.vehicles:
+            vehicle.node, vehicle.distance = int(positions[vehicle.id]), float(distances[vehicle.id])
+        self._time = float(time_s)
 
     def take_measurement(self, vehicles: Sequence[int] | None = None) -> list[Measurement]:
         ids = range(self.n_vehicles) if vehicles is None else vehicles
