@@ -7,6 +7,9 @@ fleet's starting positions. :func:`prepare` returns everything the runner needs.
 
 from __future__ import annotations
 
+import math
+import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -18,11 +21,21 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from . import plugins
 from .errors import GuadalError, explain_validation_error
 from .graph import NavGraph
-from .maps.format import Map, load_map
+from .maps.format import Map, check_node_limit, checked_path, load_map
+
+#: a mission file is a page of YAML; anything bigger is a mistake (or an attack)
+MAX_MISSION_BYTES = 1_000_000
+#: sections nest a few levels deep; thousands of levels would exhaust Python's stack
+MAX_MISSION_DEPTH = 32
+#: values once YAML anchors are expanded: a few hundred in a real mission
+MAX_MISSION_VALUES = 100_000
+#: the longest distance budget (metres) and speed (m/s) a vehicle may be given
+MAX_DISTANCE_M = 1_000_000.0
+MIN_SPEED_MS, MAX_SPEED_MS = 0.001, 100.0
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class NodePosition(_Strict):
@@ -69,8 +82,15 @@ class FleetSection(_Strict):
         description="'auto' (nodes nearest the lake's centre) or one entry per vehicle: "
         "a node id, {node}, {row, col} or {lat, lon}.",
     )
-    max_distance: float = Field(gt=0, description="Distance budget per vehicle, metres.")
-    speed: float = Field(default=0.5, gt=0, description="Nominal speed, m/s (sets simulated time).")
+    max_distance: float = Field(
+        gt=0, le=MAX_DISTANCE_M, description="Distance budget per vehicle, metres (at most 1,000 km)."
+    )
+    speed: float = Field(
+        default=0.5,
+        ge=MIN_SPEED_MS,
+        le=MAX_SPEED_MS,
+        description="Nominal speed, m/s (sets simulated time).",
+    )
     allow_shared_nodes: bool = Field(
         default=False, description="Allow two vehicles on the same node at the same step."
     )
@@ -86,20 +106,25 @@ class BackendSection(BaseModel):
 class OutputSection(_Strict):
     directory: str = Field(default="runs", description="Parent folder of run directories.")
     coverage_radius: float = Field(
-        default=10.0, gt=0, description="A node counts as covered within this many metres of a sample."
+        default=10.0,
+        gt=0,
+        le=MAX_DISTANCE_M,
+        description="A node counts as covered within this many metres of a sample.",
     )
 
 
 class Mission(_Strict):
-    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$", description="Used in run directory names.")
-    seed: int = Field(default=0, ge=0)
+    name: str = Field(
+        min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$", description="Used in run directory names."
+    )
+    seed: int = Field(default=0, ge=0, lt=2**63)
     map: MapSection
     environment: PluginSection
     algorithm: AlgorithmSection
     fleet: FleetSection
     backend: BackendSection = BackendSection()
     output: OutputSection = OutputSection()
-    max_steps: int = Field(default=100_000, ge=1, description="Safety stop on decision steps.")
+    max_steps: int = Field(default=100_000, ge=1, le=10_000_000, description="Safety stop on steps.")
 
     @field_validator("map", mode="before")
     @classmethod
@@ -154,22 +179,86 @@ class Prepared:
         return data
 
 
+class _CappedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing nesting deeper than :data:`MAX_MISSION_DEPTH` as it composes.
+
+    The depth is counted while the document is composed, so a file of ten thousand ``[`` fails
+    at level 33 with a sentence, not at level 1000 with a RecursionError.
+    """
+
+    depth = 0
+
+    def compose_node(self, parent, index):
+        self.depth += 1
+        try:
+            if self.depth > MAX_MISSION_DEPTH:
+                mark = self.peek_event().start_mark
+                raise GuadalError(
+                    f"nested more than {MAX_MISSION_DEPTH} levels deep at line {mark.line + 1}; "
+                    "a mission's sections nest a few levels at most."
+                )
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
+
+
+def _non_finite(data, where: str = "", budget: list | None = None) -> str | None:
+    """The path of the first NaN or infinite number in ``data``; counts values against a cap."""
+    budget = [MAX_MISSION_VALUES] if budget is None else budget
+    stack = [(where, data)]
+    while stack:
+        path, value = stack.pop()
+        budget[0] -= 1
+        if budget[0] < 0:
+            raise GuadalError(
+                f"holds more than {MAX_MISSION_VALUES:,} values once its anchors (&, *) are expanded; "
+                "a mission is a page of settings."
+            )
+        if isinstance(value, float) and not math.isfinite(value):
+            return path or "the document"
+        if isinstance(value, dict):
+            stack.extend((f"{path}.{k}" if path else str(k), v) for k, v in reversed(list(value.items())))
+        elif isinstance(value, list):
+            stack.extend((f"{path}[{i}]", v) for i, v in reversed(list(enumerate(value))))
+    return None
+
+
 def read_mission_file(path: Path) -> dict:
-    if not path.is_file():
-        raise GuadalError(f"{path}: mission file does not exist.")
+    """The mission's YAML as a dict: size, depth and numbers checked before anything reads it."""
+    where = checked_path(path, "mission file")
     try:
-        data = yaml.safe_load(path.read_text())
+        if not path.is_file():
+            raise GuadalError(f"{where}: mission file does not exist.")
+        size = path.stat().st_size
+        if size > MAX_MISSION_BYTES:
+            raise GuadalError(
+                f"{where}: the file is {size:,} bytes; a mission file is at most {MAX_MISSION_BYTES:,} bytes."
+            )
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = getattr(exc, "strerror", None) or exc
+        raise GuadalError(f"{where}: cannot read the mission file ({reason}).") from exc
+    try:
+        data = yaml.load(text, Loader=_CappedLoader)  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or "invalid YAML"
-        raise GuadalError(f"{path}: malformed YAML{where}: {problem}.") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise GuadalError(f"{path}: cannot read the mission file ({exc}).") from exc
+        raise GuadalError(f"{where}: malformed YAML{at}: {problem}.") from exc
+    except GuadalError as exc:
+        raise GuadalError(f"{where}: {exc}") from exc
+    except RecursionError as exc:  # a deep structure inside one flow scalar, say
+        raise GuadalError(f"{where}: nested too deeply for a mission file.") from exc
     if not isinstance(data, dict):
         raise GuadalError(
-            f"{path}: a mission file must be a YAML mapping of sections (name, map, environment, ...)."
+            f"{where}: a mission file must be a YAML mapping of sections (name, map, environment, ...)."
         )
+    try:
+        bad = _non_finite(data)
+    except GuadalError as exc:
+        raise GuadalError(f"{where}: {exc}") from exc
+    if bad is not None:
+        raise GuadalError(f"{where}: {bad}: must be a finite number (NaN and infinities are not allowed).")
     return data
 
 
@@ -249,6 +338,33 @@ def auto_positions(graph: NavGraph, n: int) -> list[int]:
     return [int(v) for v in order[:n]]
 
 
+def check_output_directory(directory: str, base_dir: Path, where: str) -> Path:
+    """The parent of run directories, checked now so that ``run`` cannot fail to create it.
+
+    The nearest folder that exists must take a new folder: that is tried for real (a folder made
+    and removed at once), since permissions alone do not tell (``/proc``, read-only mounts, root).
+    """
+    field = f"{where}output.directory"
+    checked_path(directory, field)
+    parent = Path(os.path.abspath(base_dir / directory))
+    if parent == Path(parent.anchor):
+        raise GuadalError(
+            f"{field}: '{directory}' is the filesystem root; give a folder for run directories (e.g. runs)."
+        )
+    try:
+        existing = parent
+        while not existing.exists():
+            existing = existing.parent
+        if not existing.is_dir():
+            raise GuadalError(f"{field}: '{existing}' is a file, so no run directory can be made under it.")
+        os.rmdir(tempfile.mkdtemp(prefix=".guadal-check-", dir=existing))
+    except OSError as exc:
+        raise GuadalError(
+            f"{field}: cannot create run directories under '{directory}' ({exc.strerror or exc})."
+        ) from exc
+    return parent
+
+
 def prepare(path: str | Path, seed: int | None = None) -> Prepared:
     """Load, validate and resolve a mission file; raises :class:`GuadalError` on any bad input."""
     path = Path(path)
@@ -293,20 +409,27 @@ def mission_map_path(mission: Mission, base_dir: Path) -> Path:
     return map_path if map_path.is_absolute() else Path(base_dir) / map_path
 
 
-def prepare_dict(data: dict, base_dir: str | Path, source: str | Path = "mission") -> Prepared:
+def prepare_dict(
+    data: dict, base_dir: str | Path, source: str | Path = "mission", check_output: bool = True
+) -> Prepared:
     """Validate and resolve a mission given as a mapping (what a mission file holds).
 
     Relative paths inside it are taken from ``base_dir``; ``source`` names the mission in error
     sentences and in the run manifest. A sweep builds each of its missions this way, and the
-    run is the same, byte for byte, as ``guadal run`` of a file holding ``data``.
+    run is the same, byte for byte, as ``guadal run`` of a file holding ``data``. A resumed run
+    has its run directory already: ``check_output=False`` skips ``output.directory``.
     """
     path = Path(source)
     mission = parse_mission(data, path)
     base_dir = Path(base_dir).resolve()
     where = f"{path}: "
     env_cls, env_cfg, alg_cls, alg_cfg, mode, backend_cls, backend_cfg = resolve_plugins(mission, where)
+    if check_output:
+        check_output_directory(mission.output.directory, base_dir, where)
     try:
+        checked_path(mission.map.path, "map file")
         map_ = load_map(mission_map_path(mission, base_dir))
+        check_node_limit(map_)
     except GuadalError as exc:
         raise GuadalError(f"{where}map.path: {exc}") from exc
     graph = NavGraph(map_)

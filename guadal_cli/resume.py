@@ -210,4 +210,4 @@ def prepare_resume(directory: Path) -> Prepared:
         raise GuadalError(f"run '{directory}' is complete; there is nothing to resume.")
     resolved = directory / "mission.resolved.yaml"
     mission_dir = manifest.get("mission_dir") or str(Path(str(manifest.get("mission_file", ""))).parent)
-    return prepare_dict(read_mission_file(resolved), Path(mission_dir), resolved)
+    return prepare_dict(read_mission_file(resolved), Path(mission_dir), resolved, check_output=False)
