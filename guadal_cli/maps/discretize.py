@@ -27,9 +27,9 @@ import numpy as np
 from scipy import ndimage
 
 from ..errors import GuadalError
-from .format import LocalProjection, Map
+from .format import MAX_CELL_SIZE_M, MAX_GRID_CELLS, MIN_CELL_SIZE_M, LocalProjection, Map
 
-MAX_CELLS = 4_000_000
+MAX_CELLS = MAX_GRID_CELLS
 MAX_SAMPLES = 16_000_000
 _CHUNK_SAMPLES = 1_000_000
 _EIGHT = np.ones((3, 3), dtype=bool)
@@ -45,8 +45,10 @@ class DiscretizeOptions:
     largest_body: bool = False
 
     def check(self) -> None:
-        if self.cell_size_m is not None and not (math.isfinite(self.cell_size_m) and self.cell_size_m > 0):
-            raise GuadalError(f"--cell-size must be a positive number of metres (got {self.cell_size_m:g}).")
+        if self.cell_size_m is not None and not MIN_CELL_SIZE_M <= self.cell_size_m <= MAX_CELL_SIZE_M:
+            raise GuadalError(
+                f"--cell-size must be between {MIN_CELL_SIZE_M:g} and {MAX_CELL_SIZE_M:g} metres (got {self.cell_size_m:g})."
+            )
         if not (0 < self.min_fraction <= 1):
             raise GuadalError(f"--min-fraction must be in (0, 1] (got {self.min_fraction:g}).")
         if not (1 <= self.supersample <= 32):

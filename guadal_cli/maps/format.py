@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +32,53 @@ from ..errors import GuadalError
 EARTH_RADIUS_M = 6_371_008.8
 FORMAT_NAME = "guadal-map"
 FORMAT_VERSION = 1
+#: cell sizes guadal maps are made of: a sampling grid on a pond to one on a large lake
+MIN_CELL_SIZE_M, MAX_CELL_SIZE_M = 0.1, 1000.0
+#: cells in one grid (2000 x 2000): the mask, coordinates and metric grids stay in memory
+MAX_GRID_CELLS = 4_000_000
+#: bytes of a map file (a 2000 x 2000 grid with its coordinates fits)
+MAX_MAP_BYTES = 256 * 1024 * 1024
+#: water nodes a mission's graph may have by default; the environment variable raises it
+DEFAULT_MAX_NODES = 50_000
+MAX_NODES_ENV = "GUADAL_MAX_NODES"
+
+
+def checked_path(path, what: str) -> str:
+    """``path`` as messages show it, after refusing names no filesystem takes."""
+    text = str(path)
+    shown = text if len(text) <= 120 else f"{text[:60]}...{text[-40:]}"
+    if "\x00" in text:
+        shown = shown.replace("\x00", "\\0")
+        raise GuadalError(f"{what} '{shown}' holds a NUL character, which no file name may.")
+    if len(text.encode()) > 4096 or any(len(part.encode()) > 255 for part in Path(text).parts):
+        raise GuadalError(
+            f"{what} '{shown}' is too long for a file name (at most 255 bytes per name, 4096 in all)."
+        )
+    return shown
+
+
+def max_nodes() -> int:
+    """The node-count limit: :data:`DEFAULT_MAX_NODES`, or ``GUADAL_MAX_NODES`` where set."""
+    raw = os.environ.get(MAX_NODES_ENV, "").strip()
+    if not raw:
+        return DEFAULT_MAX_NODES
+    try:
+        value = int(raw)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise GuadalError(f"{MAX_NODES_ENV} must be a whole number of nodes above 0 (got '{raw[:40]}').")
+    return value
+
+
+def check_node_limit(map_: Map) -> None:
+    """Refuse a map whose graph would not fit in memory before building it."""
+    limit = max_nodes()
+    if map_.water_nodes > limit:
+        raise GuadalError(
+            f"map '{map_.name or map_.source}' has {map_.water_nodes:,} water nodes; guadal builds graphs of at most "
+            f"{limit:,} (set {MAX_NODES_ENV} to raise the limit, memory permitting, or discretize with larger cells)."
+        )
 
 
 @dataclass(frozen=True)
@@ -85,8 +133,15 @@ class Map:
         self.mask = np.asarray(self.mask, dtype=bool)
         if self.mask.ndim != 2 or self.mask.size == 0:
             raise GuadalError("a map's mask must be a non-empty 2-D grid.")
-        if not (self.cell_size_m > 0 and math.isfinite(self.cell_size_m)):
-            raise GuadalError(f"a map's cell_size_m must be a positive number (got {self.cell_size_m}).")
+        if self.mask.size > MAX_GRID_CELLS:
+            raise GuadalError(
+                f"a map's grid is {self.mask.shape[0]}x{self.mask.shape[1]}; maps are at most {MAX_GRID_CELLS:,} cells."
+            )
+        if not MIN_CELL_SIZE_M <= self.cell_size_m <= MAX_CELL_SIZE_M:  # False for NaN too
+            raise GuadalError(
+                f"a map's cell_size_m must be between {MIN_CELL_SIZE_M:g} and {MAX_CELL_SIZE_M:g} metres "
+                f"(got {self.cell_size_m:g})."
+            )
         self.projection = LocalProjection(float(self.reference["lat"]), float(self.reference["lon"]))
         rows, cols = self.mask.shape
         if self.latlon_grid is None:
@@ -102,7 +157,33 @@ class Map:
                     f"a map's latlon grid has shape {self.lat.shape}, but its mask is {self.mask.shape}; "
                     "they must match."
                 )
+            self._check_range()
             self.x, self.y = self.projection.to_xy(self.lat, self.lon)
+            self._check_spacing()
+        self._check_range()
+
+    def _check_range(self) -> None:
+        if not (np.all(np.abs(self.lat) <= 90) and np.all(np.abs(self.lon) <= 180)):  # NaN fails too
+            raise GuadalError(
+                "a map's cells must lie at latitudes in [-90, 90] and longitudes in [-180, 180]; "
+                "this grid reaches beyond (check the reference and cell_size_m, or the latlon grid)."
+            )
+
+    def _check_spacing(self) -> None:
+        """Neighbouring cell centres of a latlon grid must be a cell apart, not collapsed or flung away."""
+        low, high = MIN_CELL_SIZE_M / 2, MAX_CELL_SIZE_M * 2
+        for axis in (0, 1):
+            if self.mask.shape[axis] < 2:
+                continue
+            gap = np.hypot(np.diff(self.x, axis=axis), np.diff(self.y, axis=axis))
+            bad = ~((gap >= low) & (gap <= high))
+            if bad.any():
+                r, c = (int(i) for i in np.argwhere(bad)[0])
+                raise GuadalError(
+                    f"a map's latlon grid puts neighbouring cells {float(gap[r, c]):.3g} m apart (near row {r}, col {c}); "
+                    f"cells must be {MIN_CELL_SIZE_M:g} to {MAX_CELL_SIZE_M:g} m across "
+                    "(a grid collapsed to one point, or a wrong coordinate?)."
+                )
 
     # --- derived facts -------------------------------------------------------------------
     @property
@@ -194,27 +275,59 @@ class Map:
 def load_map(path: str | Path) -> Map:
     """Read and check a map file; every problem is one :class:`GuadalError` sentence."""
     path = Path(path)
-    if not path.is_file():
-        raise GuadalError(f"map file '{path}' does not exist.")
+    shown = checked_path(path, "map file")
     try:
-        data = json.loads(path.read_text())
+        if not path.is_file():
+            raise GuadalError(f"map file '{shown}' does not exist.")
+        size = path.stat().st_size
+        if size > MAX_MAP_BYTES:
+            raise GuadalError(
+                f"map file '{shown}' is {size:,} bytes; map files are at most {MAX_MAP_BYTES:,} bytes."
+            )
+        data = json.loads(path.read_text(encoding="utf-8-sig"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise GuadalError(f"map file '{path}' is not readable JSON ({exc}).") from exc
+        reason = getattr(exc, "strerror", None) or exc
+        raise GuadalError(f"map file '{shown}' is not readable JSON ({reason}).") from exc
+    except RecursionError as exc:
+        raise GuadalError(f"map file '{shown}' nests its JSON too deeply to be a guadal map.") from exc
     return map_from_dict(data, path)
+
+
+def _whole(value) -> int | None:
+    """An integer given as a JSON number (``15`` or ``15.0``), else None."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return None
+
+
+def _number(value) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
 
 
 def map_from_dict(data: dict, path: Path | str = "<map>") -> Map:
     where = f"map file '{path}'"
     if not isinstance(data, dict) or data.get("format") != FORMAT_NAME:
         raise GuadalError(f"{where} is not a guadal map: 'format' must be '{FORMAT_NAME}'.")
-    if data.get("version") != FORMAT_VERSION:
-        raise GuadalError(
-            f"{where} has version {data.get('version')!r}; this guadal reads version {FORMAT_VERSION}."
-        )
+    version = data.get("version")
+    if _whole(version) != FORMAT_VERSION:
+        shown = repr(version) if not isinstance(version, (dict, list)) else type(version).__name__
+        raise GuadalError(f"{where} has version {shown[:40]}; this guadal reads version {FORMAT_VERSION}.")
     rows = data.get("mask")
     if not isinstance(rows, list) or not rows or not all(isinstance(r, str) for r in rows):
         raise GuadalError(f"{where}: 'mask' must be a list of strings of 0 and 1, one per row.")
     width = len(rows[0])
+    if len(rows) * width > MAX_GRID_CELLS:
+        raise GuadalError(
+            f"{where}: the mask is {len(rows)}x{width}; maps are at most {MAX_GRID_CELLS:,} cells "
+            "(discretize with larger cells)."
+        )
     for i, row in enumerate(rows):
         if len(row) != width or set(row) - {"0", "1"}:
             raise GuadalError(f"{where}: mask row {i} must be {width} characters of 0 (land) and 1 (water).")
@@ -225,30 +338,47 @@ def map_from_dict(data: dict, path: Path | str = "<map>") -> Map:
     needed = {"row", "col", "lat", "lon"}
     if not isinstance(ref, dict) or not needed <= set(ref):
         raise GuadalError(f"{where}: 'reference' must give row, col, lat and lon of one cell.")
-    try:
-        lat, lon = float(ref["lat"]), float(ref["lon"])
-    except (TypeError, ValueError) as exc:
-        raise GuadalError(f"{where}: reference lat and lon must be numbers.") from exc
-    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
-        raise GuadalError(f"{where}: reference lat must be in [-90, 90] and lon in [-180, 180].")
-    cell = data.get("cell_size_m")
-    if not isinstance(cell, (int, float)) or not cell > 0:
-        raise GuadalError(f"{where}: 'cell_size_m' must be a positive number of metres.")
+    lat, lon = _number(ref["lat"]), _number(ref["lon"])
+    if lat is None or lon is None or not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise GuadalError(f"{where}: reference lat must be a number in [-90, 90] and lon one in [-180, 180].")
+    ref_row, ref_col = _whole(ref["row"]), _whole(ref["col"])
+    if ref_row is None or ref_col is None or not (0 <= ref_row < mask.shape[0] and 0 <= ref_col < width):
+        raise GuadalError(
+            f"{where}: reference row and col must be whole numbers naming a cell of the grid "
+            f"(rows 0..{mask.shape[0] - 1}, cols 0..{width - 1})."
+        )
+    cell = _number(data.get("cell_size_m"))
+    if cell is None or not MIN_CELL_SIZE_M <= cell <= MAX_CELL_SIZE_M:
+        raise GuadalError(
+            f"{where}: 'cell_size_m' must be a number of metres between {MIN_CELL_SIZE_M:g} and {MAX_CELL_SIZE_M:g}."
+        )
     latlon = None
     if "latlon" in data:
+        grids = data["latlon"]
         try:
-            latlon = (
-                np.array(data["latlon"]["lat"], dtype=float),
-                np.array(data["latlon"]["lon"], dtype=float),
-            )
-        except (KeyError, TypeError, ValueError) as exc:
+            if not isinstance(grids, dict):
+                raise TypeError
+            latlon = tuple(np.array(grids[k], dtype=float) for k in ("lat", "lon"))
+        except (KeyError, TypeError, ValueError, RecursionError) as exc:
             raise GuadalError(f"{where}: 'latlon' must hold 'lat' and 'lon' grids of numbers.") from exc
-    return Map(
-        mask=mask,
-        cell_size_m=float(cell),
-        reference={"row": int(ref["row"]), "col": int(ref["col"]), "lat": lat, "lon": lon},
-        name=str(data.get("name", "")),
-        description=str(data.get("description", "")),
-        latlon_grid=latlon,
-        source=Path(path) if not isinstance(path, Path) else path,
-    )
+        if any(g.shape != mask.shape for g in latlon):
+            raise GuadalError(
+                f"{where}: 'latlon' grids must have the mask's shape {mask.shape[0]}x{width} "
+                f"(got {'x'.join(map(str, latlon[0].shape))} and {'x'.join(map(str, latlon[1].shape))})."
+            )
+        if not all(np.isfinite(g).all() for g in latlon):
+            raise GuadalError(
+                f"{where}: 'latlon' holds NaN or infinite coordinates; every cell needs a position."
+            )
+    try:
+        return Map(
+            mask=mask,
+            cell_size_m=cell,
+            reference={"row": ref_row, "col": ref_col, "lat": lat, "lon": lon},
+            name=str(data.get("name", ""))[:200],
+            description=str(data.get("description", ""))[:2000],
+            latlon_grid=latlon,
+            source=Path(path) if not isinstance(path, Path) else path,
+        )
+    except GuadalError as exc:
+        raise GuadalError(f"{where}: {exc}") from exc
