@@ -54,6 +54,11 @@ def register(app: typer.Typer) -> None:
             "--water-value",
             help="Grid masks: the value that means water (default 1; 0 for inverted files).",
         ),
+        delimiter: str | None = typer.Option(
+            None,
+            "--delimiter",
+            help="Grid masks: the cell separator, ',' ';' 'tab' or 'space' (default: read from the first row).",
+        ),
         latlon_grid: Path | None = typer.Option(
             None, "--latlon-grid", help="Grid masks: \"lat,lon\" per cell centre or corner, ';'-separated."
         ),
@@ -112,6 +117,7 @@ def register(app: typer.Typer) -> None:
                 rule=rule,
                 water_value=water_value,
                 latlon_grid=latlon_grid,
+                delimiter=delimiter,
                 image_only_options=image_options,
             )
             options = DiscretizeOptions(
@@ -137,12 +143,17 @@ def register(app: typer.Typer) -> None:
 
 
 def _check_output(output: Path) -> Path:
+    from ..maps.format import checked_path
+
+    checked_path(output, "--output")
     if output.exists() and output.is_dir():
         raise GuadalError(
             f"--output '{output}' is a folder; give the map file's name (e.g. {output}/lake.json)."
         )
     if not output.parent.is_dir():
         raise GuadalError(f"--output '{output}': folder '{output.parent}' does not exist.")
+    if not os.access(output.parent, os.W_OK):
+        raise GuadalError(f"--output '{output}': folder '{output.parent}' is not writable.")
     return output
 
 

@@ -74,6 +74,8 @@ def write_figure(fig: Figure, path: Path) -> None:
     try:
         fig.savefig(tmp, format="png", dpi=130)
         os.replace(tmp, path)
+    except OSError as exc:
+        raise GuadalError(f"cannot write preview '{path}': {exc.strerror or exc}.") from exc
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -19,7 +19,7 @@ from matplotlib.path import Path as PolyPath
 from scipy.spatial import cKDTree
 
 from ..errors import GuadalError
-from .format import EARTH_RADIUS_M, LocalProjection
+from .format import EARTH_RADIUS_M, MAX_GRID_CELLS, LocalProjection
 from .georef import Bounds, image_bounds
 from .water_rules import WaterRule
 
@@ -304,33 +304,105 @@ def load_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, bool]:
     return rgb, alpha, is_grey
 
 
+#: text files larger than this are not grid masks or outlines a spreadsheet or GIS would write
+MAX_TEXT_BYTES = 256 * 1024 * 1024
+#: what --delimiter accepts, and the separators a grid mask's first row is sniffed for
+DELIMITERS = {",": ",", ";": ";", "tab": "\t", "\\t": "\t", "\t": "\t", "space": None, "whitespace": None}
+
+
 def _read_text(path: Path, what: str) -> str:
+    """UTF-8 (with or without a byte-order mark) or UTF-16 with its mark, as spreadsheets save text."""
     try:
-        return path.read_text(encoding="utf-8-sig")  # tolerate the byte-order mark some spreadsheets write
-    except (OSError, UnicodeDecodeError) as exc:
+        size = path.stat().st_size
+        if size > MAX_TEXT_BYTES:
+            raise GuadalError(
+                f"{what} '{path.name}' is {size:,} bytes; text sources are at most {MAX_TEXT_BYTES:,}."
+            )
+        raw = path.read_bytes()
+    except OSError as exc:
         raise GuadalError(f"cannot read {what} '{path.name}': {exc.strerror or exc}.") from exc
+    try:
+        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+            return raw.decode("utf-16")
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = None
+    if text is None or "\x00" in text:
+        raise GuadalError(
+            f"cannot read {what} '{path.name}': it is not text (guadal reads UTF-8, or UTF-16 with a byte-order mark)."
+        )
+    return text
 
 
-def read_grid_mask(path: Path, water_value: float) -> np.ndarray:
-    """A comma- or whitespace-delimited grid of numbers -> water where the value equals ``water_value``."""
+def _split(line: str, delimiter: str | None) -> list[str]:
+    """Cells of one row; a decimal comma is read as a point when cells are not comma-separated."""
+    cells = line.split() if delimiter is None else line.split(delimiter)
+    cells = [c.strip().strip("\"'") for c in cells]
+    if delimiter != ",":
+        cells = [c.replace(",", ".") for c in cells]
+    return [c for c in cells if c != ""]
+
+
+def _sniff(line: str) -> str | None:
+    """The separator of a row: ';', tab or ',' if present (in that order), else whitespace."""
+    for candidate in (";", "\t", ","):
+        if candidate in line:
+            return candidate
+    return None
+
+
+def parse_delimiter(text: str | None) -> str | None:
+    """``--delimiter`` as a separator (None: sniff from the first row)."""
+    if text is None:
+        return None
+    if text not in DELIMITERS:
+        raise GuadalError(
+            f"--delimiter '{text[:20]}' is not one guadal reads (allowed: ',', ';', 'tab', 'space')."
+        )
+    return DELIMITERS[text] or " "
+
+
+def read_grid_mask(path: Path, water_value: float, delimiter: str | None = None) -> np.ndarray:
+    """A grid of numbers -> water where the value equals ``water_value``.
+
+    Cells are separated by commas, semicolons, tabs or spaces: ``delimiter`` (``" "`` for any
+    whitespace), or sniffed from the first row. One header row of non-numbers is skipped, as are
+    blank lines and ``#`` comments.
+    """
     rows = []
+    sep = None if delimiter == " " else delimiter
+    sniffed = delimiter is not None
+    header_seen = False
     for number, line in enumerate(_read_text(path, "grid mask").splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
-        cells = [c for c in (line.split(",") if "," in line else line.split()) if c.strip() != ""]
+        if not sniffed:
+            sep, sniffed = _sniff(line), True
+        cells = _split(line, sep)
         try:
             rows.append([float(c) for c in cells])
         except ValueError:
+            if not rows and not header_seen:
+                header_seen = True  # column names above the grid
+                continue
+            shown = {None: "spaces", ",": "','", ";": "';'", "\t": "tabs"}[sep]
             raise GuadalError(
-                f"grid mask '{path.name}' line {number}: every cell must be a number (got '{line[:40]}')."
+                f"grid mask '{path.name}' line {number}: every cell must be a number (got '{line[:40]}'); "
+                f"cells were split at {shown} (choose the separator with --delimiter)."
             ) from None
+        if not all(math.isfinite(v) for v in rows[-1]):
+            raise GuadalError(
+                f"grid mask '{path.name}' line {number}: cells must be finite numbers, not NaN or inf."
+            )
         if len(rows[-1]) != len(rows[0]):
             raise GuadalError(
                 f"grid mask '{path.name}' line {number} has {len(rows[-1])} cells but the first row has {len(rows[0])}; "
                 "every row must have the same number of cells."
             )
-    if not rows:
+        if len(rows) * len(rows[0]) > MAX_GRID_CELLS:
+            raise GuadalError(f"grid mask '{path.name}' has more than {MAX_GRID_CELLS:,} cells.")
+    if not rows or not rows[0]:
         raise GuadalError(f"grid mask '{path.name}' holds no rows of numbers.")
     values = np.array(rows, dtype=float)
     water = np.isclose(values, water_value)
@@ -448,6 +520,7 @@ def open_source(
     rule: WaterRule | None = None,
     water_value: float | None = None,
     latlon_grid: Path | None = None,
+    delimiter: str | None = None,
     image_only_options: tuple[str, ...] = (),
 ) -> RasterSource | CoordinateGridSource | OutlineSource:
     """Read ``path`` by its suffix, with the options that apply to its kind, and find its water."""
@@ -468,6 +541,7 @@ def open_source(
     for flag, given in (
         ("--latlon-grid", latlon_grid is not None),
         ("--water-value", water_value is not None),
+        ("--delimiter", delimiter is not None),
     ):
         if kind != "grid mask" and given:
             raise GuadalError(
@@ -483,7 +557,13 @@ def open_source(
                 f"--bounds does not apply to outlines: '{path.name}' carries its own lon/lat coordinates."
             )
         return OutlineSource(path, read_outline(path))
-    return _open_grid(path, parsed_bounds, 1.0 if water_value is None else water_value, latlon_grid)
+    return _open_grid(
+        path,
+        parsed_bounds,
+        1.0 if water_value is None else water_value,
+        latlon_grid,
+        parse_delimiter(delimiter),
+    )
 
 
 def _open_image(path: Path, bounds: Bounds | None, rule: WaterRule) -> RasterSource:
@@ -511,8 +591,10 @@ def _open_image(path: Path, bounds: Bounds | None, rule: WaterRule) -> RasterSou
     )
 
 
-def _open_grid(path: Path, bounds: Bounds | None, water_value: float, latlon_grid: Path | None):
-    water = read_grid_mask(path, water_value)
+def _open_grid(
+    path: Path, bounds: Bounds | None, water_value: float, latlon_grid: Path | None, delimiter: str | None
+):
+    water = read_grid_mask(path, water_value, delimiter)
     rule = f"value == {water_value:g}"
     if latlon_grid is None:
         if bounds is None:
