@@ -37,6 +37,45 @@ COMMAND_NAMES = {k: v.name.replace("MAV_CMD_", "") for k, v in mavlink.enums["MA
 EVENT_TYPES = {"COMMAND_ACK", "MISSION_ACK", "MISSION_ITEM_REACHED", "STATUSTEXT", "PARAM_VALUE"}
 
 
+class _WriteGuard:
+    """The write lock of a link, which also keeps a dead link from raising into the bridge.
+
+    When the autopilot (or the router before it) goes away, pymavlink's writes raise
+    (``BrokenPipeError``, or ``AttributeError`` while it reconnects). Such a write is dropped
+    with one warning per outage: the bridge pursues modes and targets until the autopilot
+    confirms them, so nothing is lost once the link is back.
+    """
+
+    def __init__(self, connection: str):
+        self.connection = connection
+        self._lock = threading.Lock()
+        self.down = False
+
+    def __enter__(self):
+        self._lock.acquire()
+        return self
+
+    def __exit__(self, kind, exc, tb) -> bool:
+        try:
+            if exc is None:
+                if self.down:
+                    log.info("MAVLink writes to '%s' go through again", self.connection)
+                self.down = False
+                return False
+            if isinstance(exc, (OSError, AttributeError)):
+                if not self.down:
+                    log.warning(
+                        "MAVLink link '%s' is down (%s); writes dropped until it is back",
+                        self.connection,
+                        exc,
+                    )
+                self.down = True
+                return True
+            return False
+        finally:
+            self._lock.release()
+
+
 def mode_name(number: int | None) -> str:
     if number is None:
         return "UNKNOWN"
@@ -86,7 +125,7 @@ class AutopilotLink:
         self.target_system = 0
         self.target_component = 1
         self.on_event: Callable[[object], None] = lambda msg: None
-        self._lock = threading.Lock()
+        self._lock = _WriteGuard(connection)
         self._state_lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
