@@ -148,6 +148,23 @@ class RemoteFleet(Fleet):
 
         self._owner.call(place)
 
+    def restore(self, positions: Mapping[int, int], distances: Mapping[int, float], time_s: float) -> None:
+        """Take over a resumed run: every boat back to the node the record last saw it at (not
+        counted, as at reset), its distance as recorded, and its clock going on from ``time_s``."""
+        self.reset([int(positions[v.id]) for v in self.vehicles])
+
+        def carry_on():
+            for v in self.vehicles:
+                v.distance = float(distances[v.id])
+                if v.t0 is not None:
+                    v.t0 -= float(time_s)
+
+        self._owner.call(carry_on)
+
+    @property
+    def synthetic_measurements(self) -> bool:
+        return self.config.measurements == "synthetic"
+
     def _start_clocks(self) -> None:
         """Read every vehicle's clock now that all are in place: mission time starts here.
 
