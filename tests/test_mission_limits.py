@@ -6,7 +6,7 @@ since a mission that validates must not fail at ``run`` for anything its file co
 
 import pytest
 import yaml
-from support import base_mission
+from support import ROOT, base_mission
 from typer.testing import CliRunner
 
 from guadal_cli.app import app
@@ -107,3 +107,11 @@ def test_non_finite_and_unphysical_numbers_are_refused_with_their_field(
 
 def test_a_name_too_long_for_a_run_directory_is_refused(write_mission):
     refused(write_mission(base_mission(name="n" * 300)), "name: string should have at most 100 characters")
+
+
+def test_a_drift_faster_than_any_water_is_refused_not_integrated_forever(write_mission):
+    """Found by the fuzz suite: a wind of 2**63 m/s made the trash world's sub-steps endless."""
+    mission = yaml.safe_load((ROOT / "missions" / "trash_detection_greedy.yaml").read_text())
+    mission["map"] = str(ROOT / "maps" / "urban_lake.json")
+    mission["environment"]["drift"] = {"wind": [2**63, 0.0]}
+    refused(write_mission(mission), "environment.drift.wind[0]", "less than or equal to 100")

@@ -56,7 +56,12 @@ class OilSpillConfig(BaseModel):
         validate_default=True,
         description="Number of random sources (default release) on the largest water body, or a list of sources.",
     )
-    diffusivity: float = Field(default=0.05, ge=0, description="Horizontal diffusivity D, m2/s.")
+    diffusivity: float = Field(
+        default=0.05,
+        ge=0,
+        le=10,
+        description="Horizontal diffusivity D, m2/s (at most 10: a lake's is below 1).",
+    )
     drift: DriftConfig = DriftConfig()
     decay_rate: float = Field(default=0.0, ge=0, description="First-order loss rate k, 1/s (0: no sink).")
     threshold: float = Field(

@@ -56,7 +56,9 @@ class TrashConfig(BaseModel):
     )
     capacity: int | None = Field(default=None, ge=1, description="Items a vehicle can hold; null: unlimited.")
     drift: DriftConfig = DriftConfig()
-    jitter: float = Field(default=0.0, ge=0, description="Random-walk strength of the drift, m/sqrt(s).")
+    jitter: float = Field(
+        default=0.0, ge=0, le=10, description="Random-walk strength of the drift, m/sqrt(s)."
+    )
 
     @field_validator("spots", mode="before")
     @classmethod

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from typing import Generic, TypeVar
+from typing import Annotated, Generic, TypeVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -101,12 +101,22 @@ def place(sites: list[Site], graph: NavGraph, where: str, rng: np.random.Generat
     return [int(body[rng.integers(len(body))]) if n is None else n for n in fixed]
 
 
+_Current = Annotated[float, Field(ge=-10, le=10)]
+_Wind = Annotated[float, Field(ge=-100, le=100)]
+
+
 class DriftConfig(BaseModel):
     """Surface velocity in m/s: ``current + wind_factor * wind`` (east, north)."""
 
     model_config = ConfigDict(extra="forbid")
-    current: tuple[float, float] = Field(default=(0.0, 0.0), description="Water current [east, north], m/s.")
-    wind: tuple[float, float] = Field(default=(0.0, 0.0), description="Wind at 10 m [east, north], m/s.")
+    # physical ranges: the fastest tidal races run at about 5 m/s, hurricanes blow at about 80 m/s;
+    # beyond them the drift's sub-steps would run a mission without end
+    current: tuple[_Current, _Current] = Field(
+        default=(0.0, 0.0), description="Water current [east, north], m/s (each within ±10)."
+    )
+    wind: tuple[_Wind, _Wind] = Field(
+        default=(0.0, 0.0), description="Wind at 10 m [east, north], m/s (each within ±100)."
+    )
     wind_factor: float = Field(
         default=0.03,
         ge=0,
