@@ -268,6 +268,11 @@ class Bridge:
             self._repeat_answer(kind, seq)
             self.publish_status()
             return
+        if kind == "goto" and verdict == "new" and self.link.snapshot().lat is None:
+            # just started: the autopilot's first position is on its way, and the planner sends
+            # unanswered commands again; refusing now would end the boat's mission for nothing
+            log.info("goto seq %d waits for the autopilot's first position", seq)
+            return
         previous = self.follower.session
         self.follower.take(data)
         self.last_kind = kind
@@ -308,8 +313,6 @@ class Bridge:
         )
         s = self.link.snapshot()
         reason = self.planner.check_target(goal.node, goal.lat, goal.lon)
-        if reason is None and s.lat is None:
-            reason = "the autopilot has not reported a position yet."
         if reason is None and not s.armed and not self.config.arm:
             reason = "the vehicle is disarmed (arm it, or start the bridge with --arm)."
         if reason is None:

@@ -11,6 +11,8 @@ is still not booked while the boat's own telemetry says it is elsewhere.
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import threading
 
 import pytest
@@ -234,6 +236,32 @@ def test_a_restarted_bridge_and_a_restarted_planner_resynchronise(graph, stack):
             second.close()
     finally:
         first.close()
+
+
+def test_a_killed_planner_is_replaced_by_the_next_run_without_manual_steps(graph, stack, tmp_path):
+    """kill -9 of `guadal run` mid-mission: its last will puts the boats in failsafe HOLD; the
+    next run's signed session start takes them back."""
+    mission = base_mission(backend={**stack.planner_backend(), "offline_grace": 20})
+    mission["fleet"].update(vehicles=N, max_distance=400.0)
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(mission))
+    first = subprocess.Popen(
+        [sys.executable, "-m", "guadal_cli", "run", str(path), "-o", str(tmp_path / "first"), "-q"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    metrics = tmp_path / "first" / "metrics.csv"
+    try:
+        wait_for(lambda: metrics.is_file() and len(metrics.read_text().splitlines()) > 3, 60, "no mission")
+    finally:
+        first.kill()
+        first.wait(10)
+    mission["fleet"]["max_distance"] = 20.0
+    path.write_text(yaml.safe_dump(mission))
+    second = run_cli("run", path, "-o", tmp_path / "second")
+    assert second.returncode == 0, second.stderr
+    manifest = json.loads((tmp_path / "second" / "manifest.json").read_text())
+    assert manifest["status"] == "complete" and manifest["fleet"]["problems"] == []
 
 
 def test_operator_controls_reach_the_planner_once_and_only_from_the_operator(graph, stack):
