@@ -4,11 +4,18 @@ A :class:`GuadalError` carries a single sentence that names what is wrong and wh
 The CLI prints it without a traceback and exits with code 2; library callers can catch it.
 """
 
+#: control characters a user's value may smuggle into a sentence, shown escaped (a newline in a
+#: plugin name or a path must not split the sentence, nor move the terminal's cursor)
+_ESCAPED = {**{i: f"\\x{i:02x}" for i in (*range(32), 127)}, 9: "\\t", 10: "\\n", 13: "\\r"}
+
 
 class GuadalError(Exception):
     """Bad input or an impossible request, explained in one sentence."""
 
     exit_code = 2
+
+    def __init__(self, message: str = "", *args):
+        super().__init__(str(message).translate(_ESCAPED), *args)
 
 
 def _model_at(model, loc):

@@ -115,3 +115,15 @@ def test_a_drift_faster_than_any_water_is_refused_not_integrated_forever(write_m
     mission["map"] = str(ROOT / "maps" / "urban_lake.json")
     mission["environment"]["drift"] = {"wind": [2**63, 0.0]}
     refused(write_mission(mission), "environment.drift.wind[0]", "less than or equal to 100")
+
+
+@pytest.mark.parametrize("field", ["map", "name"])
+def test_a_value_with_a_newline_stays_inside_one_sentence(field, write_mission):
+    """Found by the fuzz suite: a newline in a value split the sentence that quoted it."""
+    from guadal_cli.errors import GuadalError
+    from guadal_cli.mission import prepare
+
+    with pytest.raises(GuadalError) as caught:
+        prepare(write_mission(base_mission(**{field: "lake\n\x1b[2J.json"})))
+    assert "\n" not in str(caught.value) and "\x1b" not in str(caught.value)
+    assert "lake\\n\\x1b[2J.json" in str(caught.value)
