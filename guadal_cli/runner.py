@@ -312,6 +312,7 @@ class MissionRunner:
                     "stop_reason": self.stop_reason,
                     "fleet": fleet_health,
                     "final_metrics": getattr(self, "last_metrics", None),
+                    "model": self.environment.model_description(),
                 },
             )
             if previous_term is not None:

@@ -86,3 +86,7 @@ class Environment(ABC):
     def ground_truth(self) -> np.ndarray | None:
         """Per-node truth for plots and RMSE; None when the world is only known by sensing."""
         return None
+
+    def model_description(self) -> dict | None:
+        """Which model estimated the world, for the run manifest (None: nothing to state)."""
+        return None

@@ -1,1 +1,1 @@
-"""Field models built from measurements (the GP, and others environments may add)."""
+"""Field models built from measurements: the exact incremental GP and the local GP for large lakes."""

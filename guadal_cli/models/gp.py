@@ -43,20 +43,22 @@ class KernelConfig(BaseModel):
     nu: Literal[0.5, 1.5, 2.5] = Field(default=1.5, description="Matérn smoothness (matern only).")
 
 
+def correlation(cfg: KernelConfig, d: np.ndarray) -> np.ndarray:
+    """The kernel's correlation at distances ``d`` measured in length scales."""
+    if cfg.type == "rbf":
+        return np.exp(-0.5 * d**2)
+    if cfg.nu == 0.5:
+        return np.exp(-d)
+    if cfg.nu == 1.5:
+        s = math.sqrt(3.0) * d
+        return (1.0 + s) * np.exp(-s)
+    s = math.sqrt(5.0) * d
+    return (1.0 + s + s**2 / 3.0) * np.exp(-s)
+
+
 def kernel_matrix(cfg: KernelConfig, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Covariance between point sets ``a`` (n,2) and ``b`` (m,2), without the noise term."""
-    d = cdist(a / cfg.length_scale, b / cfg.length_scale)
-    if cfg.type == "rbf":
-        k = np.exp(-0.5 * d**2)
-    elif cfg.nu == 0.5:
-        k = np.exp(-d)
-    elif cfg.nu == 1.5:
-        s = math.sqrt(3.0) * d
-        k = (1.0 + s) * np.exp(-s)
-    else:
-        s = math.sqrt(5.0) * d
-        k = (1.0 + s + s**2 / 3.0) * np.exp(-s)
-    return cfg.variance * k
+    return cfg.variance * correlation(cfg, cdist(a / cfg.length_scale, b / cfg.length_scale))
 
 
 def sklearn_kernel(cfg: KernelConfig, fit_bounds=None):
@@ -104,6 +106,17 @@ class IncrementalGP:
         self.n_ = 0
         self._mean_delta = np.zeros(n_points)
         self._var = np.full(n_points, self.kernel.variance)
+
+    def memory_bytes(self, n_samples: int | None = None) -> int:
+        """Bytes held with ``n_samples`` samples (default: now): the samples x nodes matrix
+        ``V`` dominates, allocated in doublings of 64 rows."""
+        n = self.n_ if n_samples is None else n_samples
+        cap = 64
+        while cap < n:
+            cap *= 2
+        n_points = len(self.points)
+        cached = n_points**2 if n_points <= self.CACHE_POINTS else 0
+        return 8 * (cap * (cap + n_points + 4) + 2 * n_points + cached)
 
     def _grow(self) -> None:
         cap = self._cap * 2
@@ -187,27 +200,33 @@ class IncrementalGP:
 
     def fit_hyperparameters(self, seed: int = 0) -> KernelConfig:
         """Maximise the marginal likelihood over length scale, variance and noise; rebuild."""
-        from sklearn.gaussian_process import GaussianProcessRegressor
-        from sklearn.gaussian_process.kernels import WhiteKernel
-
         if self.n_ < 3:
             return self.kernel
         span = float(np.ptp(self.points, axis=0).max()) or 1.0
-        kernel = sklearn_kernel(self.kernel, fit_bounds=(1e-2, max(span, 1.0) * 10)) + WhiteKernel(
-            self.kernel.noise, noise_level_bounds=(1e-8, 1.0)
-        )
-        kernel.k1.k1.constant_value_bounds = (1e-4, 1e3)
-        gpr = GaussianProcessRegressor(kernel=kernel, normalize_y=False, random_state=seed)
-        gpr.fit(self.X_, self.y_ - self.prior_mean)
-        fitted = gpr.kernel_
-        self.kernel = self.kernel.model_copy(
-            update={
-                "variance": float(fitted.k1.k1.constant_value),
-                "length_scale": float(fitted.k1.k2.length_scale),
-                "noise": float(max(fitted.k2.noise_level, 1e-8)),
-            }
-        )
+        self.kernel = fit_kernel(self.kernel, self.X_, self.y_ - self.prior_mean, span, seed)
         X, y = self.X_.copy(), self.y_.copy()
         self.reset()
         self.add_many(X, y)
         return self.kernel
+
+
+def fit_kernel(kernel: KernelConfig, X: np.ndarray, y: np.ndarray, span: float, seed: int) -> KernelConfig:
+    """The kernel maximising the marginal likelihood of ``y`` (prior mean removed) at ``X``;
+    length scales are bounded by ten times ``span``, the extent of the map in metres."""
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import WhiteKernel
+
+    fit = sklearn_kernel(kernel, fit_bounds=(1e-2, max(span, 1.0) * 10)) + WhiteKernel(
+        kernel.noise, noise_level_bounds=(1e-8, 1.0)
+    )
+    fit.k1.k1.constant_value_bounds = (1e-4, 1e3)
+    gpr = GaussianProcessRegressor(kernel=fit, normalize_y=False, random_state=seed)
+    gpr.fit(X, y)
+    fitted = gpr.kernel_
+    return kernel.model_copy(
+        update={
+            "variance": float(fitted.k1.k1.constant_value),
+            "length_scale": float(fitted.k1.k2.length_scale),
+            "noise": float(max(fitted.k2.noise_level, 1e-8)),
+        }
+    )

@@ -1,10 +1,14 @@
-"""The gp environment's ground truths and its periodic hyperparameter fitting, through missions."""
+"""The gp environment's ground truths, its hyperparameter fitting and its choice of model, through missions."""
+
+import json
 
 import numpy as np
+import pytest
 from support import LAKE, base_mission, run_cli
 
 from guadal_cli.maps.format import Map, load_map
 from guadal_cli.mission import prepare
+from guadal_cli.models.local_gp import LocalGP
 from guadal_cli.runner import MissionRunner
 
 
@@ -47,12 +51,14 @@ def test_external_truth_file_is_read_on_the_map_grid(write_mission, tmp_path):
     )
 
 
-def test_hyperparameters_are_refitted_at_the_chosen_interval(write_mission, tmp_path):
+@pytest.mark.parametrize("model", ["exact", "local"])
+def test_hyperparameters_are_refitted_at_the_chosen_interval(model, write_mission, tmp_path):
     env = {
         "type": "gp",
         "ground_truth": {"type": "gp_prior", "length_scale": 40.0},
         "kernel": {"type": "rbf", "length_scale": 5.0, "noise": 1e-3},
         "fit_every": 10,
+        "model": {"type": model},
     }
     prep = prepare(write_mission(base_mission(environment=env, fleet={"vehicles": 2, "max_distance": 150})))
     MissionRunner(prep, output=tmp_path / "run").run()
@@ -81,3 +87,26 @@ def test_vehicles_in_separate_water_bodies_are_refused(write_mission, tmp_path):
     # auto places every boat in the largest body, so the same fleet with auto is valid
     mission["fleet"]["initial_positions"] = "auto"
     assert run_cli("validate", write_mission(mission)).returncode == 0
+
+
+def test_the_local_gp_takes_over_past_the_exact_gps_memory_and_the_manifest_says_so(write_mission, tmp_path):
+    fleet = {"vehicles": 3, "initial_positions": "auto", "max_distance": 300.0, "speed": 0.5}
+    env = {"type": "gp", "kernel": {"type": "matern", "nu": 1.5, "length_scale": 20.0, "noise": 1e-3}}
+    exact = MissionRunner(
+        prepare(write_mission(base_mission(environment=env, fleet=fleet))), tmp_path / "a"
+    ).run()
+    # 351 nodes: the exact GP needs 1.5 MB up to 128 samples and 2.2 MB for 256
+    env["model"] = {"exact_max_mb": 2.0}
+    prep = prepare(write_mission(base_mission(environment=env, fleet=fleet), name="capped.yaml"))
+    capped = MissionRunner(prep, tmp_path / "b").run()
+
+    manifests = [json.loads((tmp_path / d / "manifest.json").read_text()) for d in ("a", "b")]
+    assert manifests[0]["model"] == {"type": "exact"}
+    model = manifests[1]["model"]
+    assert model["type"] == "local" and 120 <= model["since_sample"] <= 128 < capped.final_metrics["samples"]
+    assert "exact_max_mb" in model["reason"]
+    assert isinstance(prep.environment.model, LocalGP)
+    # the hand-over keeps the samples: the maps stay close to the exact run's
+    fields = [np.genfromtxt(tmp_path / d / "fields.csv", delimiter=",", names=True) for d in ("a", "b")]
+    assert abs(fields[0]["std"].mean() - fields[1]["std"].mean()) < 0.05
+    assert capped.final_metrics["rmse"] < exact.final_metrics["rmse"] + 0.05
