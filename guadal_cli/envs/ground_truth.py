@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +54,16 @@ class ShekelField:
 
 
 class GPPriorField:
-    """A smooth field drawn from a zero-mean GP prior (RBF), normalised to [0, 1]."""
+    """A smooth field drawn from a zero-mean GP prior (RBF), normalised to [0, 1].
+
+    Drawn on the map's whole grid by circulant embedding: the grid, padded by six length scales
+    on each axis (where the kernel has vanished), is a torus on which the covariance is
+    diagonalised by the FFT, so a draw costs O(N log N) time and O(N) memory at any size.
+    Cells are spaced by the grid's mean spacing along rows and columns.
+    """
+
+    #: largest padded grid drawn (cells): 128 M cells take ~3 GB of FFT workspace
+    MAX_CELLS = 2**27
 
     class Config(_Config):
         length_scale: float = Field(default=30.0, gt=0, description="Correlation length, metres.")
@@ -62,13 +72,38 @@ class GPPriorField:
         self.config = config
 
     def generate(self, graph: NavGraph, rng: np.random.Generator, base_dir=None) -> np.ndarray:
-        from ..models.gp import KernelConfig, kernel_matrix
+        from scipy import fft
 
-        k = kernel_matrix(KernelConfig(type="rbf", length_scale=self.config.length_scale), graph.xy, graph.xy)
-        # smooth kernels give near-singular covariances: a small jitter keeps Cholesky stable
-        k[np.diag_indices_from(k)] += 1e-6
-        sample = np.linalg.cholesky(k) @ rng.standard_normal(graph.n_nodes)
-        return _normalise(sample)
+        m = graph.map
+        rows, cols = m.shape
+        dy = float(np.abs(np.diff(m.y, axis=0)).mean()) if rows > 1 else m.cell_size_m
+        dx = float(np.abs(np.diff(m.x, axis=1)).mean()) if cols > 1 else m.cell_size_m
+        ell = self.config.length_scale
+        size = [
+            fft.next_fast_len(n + min(n, math.ceil(6 * ell / d)), real=True)
+            for n, d in ((rows, dy), (cols, dx))
+        ]
+        if size[0] * size[1] > self.MAX_CELLS:
+            raise GuadalError(
+                f"environment.ground_truth: a gp_prior with length_scale {ell:g} m on this {rows} x {cols} grid "
+                f"needs a {size[0]} x {size[1]} FFT, more than the {self.MAX_CELLS:,} cells allowed; "
+                "use a shorter length_scale, a coarser map or a file ground truth."
+            )
+        # the covariance's first row on the torus: distance to cell (0, 0) the short way round
+        i = np.arange(size[0])
+        j = np.arange(size[1])
+        di = np.minimum(i, size[0] - i)[:, None] * (dy / ell)
+        dj = np.minimum(j, size[1] - j)[None, :] * (dx / ell)
+        eigenvalues = fft.rfft2(np.exp(-0.5 * (di**2 + dj**2))).real
+        del di, dj
+        # a kernel too long for the padding leaves tiny negative eigenvalues: dropped
+        amplitude = np.sqrt(np.clip(eigenvalues, 0.0, None))
+        del eigenvalues
+        noise = fft.rfft2(rng.standard_normal(size))
+        noise *= amplitude
+        del amplitude
+        field = fft.irfft2(noise, s=size)
+        return _normalise(field[graph.rows, graph.cols])
 
 
 class FileField:

@@ -212,7 +212,9 @@ class IncrementalGP:
 
 def fit_kernel(kernel: KernelConfig, X: np.ndarray, y: np.ndarray, span: float, seed: int) -> KernelConfig:
     """The kernel maximising the marginal likelihood of ``y`` (prior mean removed) at ``X``;
-    length scales are bounded by ten times ``span``, the extent of the map in metres."""
+    length scales are bounded by ten times ``span``, the extent of the map in metres. One more
+    start (seeded) besides the current kernel: from a short length scale alone, the optimiser
+    can settle on a degenerate optimum (length scale at its lower bound, samples independent)."""
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import WhiteKernel
 
@@ -220,7 +222,7 @@ def fit_kernel(kernel: KernelConfig, X: np.ndarray, y: np.ndarray, span: float, 
         kernel.noise, noise_level_bounds=(1e-8, 1.0)
     )
     fit.k1.k1.constant_value_bounds = (1e-4, 1e3)
-    gpr = GaussianProcessRegressor(kernel=fit, normalize_y=False, random_state=seed)
+    gpr = GaussianProcessRegressor(kernel=fit, normalize_y=False, n_restarts_optimizer=1, random_state=seed)
     gpr.fit(X, y)
     fitted = gpr.kernel_
     return kernel.model_copy(

@@ -6,6 +6,9 @@ import numpy as np
 import pytest
 from support import LAKE, base_mission, run_cli
 
+from guadal_cli.envs.ground_truth import GPPriorField
+from guadal_cli.errors import GuadalError
+from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import Map, load_map
 from guadal_cli.mission import prepare
 from guadal_cli.models.local_gp import LocalGP
@@ -110,3 +113,35 @@ def test_the_local_gp_takes_over_past_the_exact_gps_memory_and_the_manifest_says
     fields = [np.genfromtxt(tmp_path / d / "fields.csv", delimiter=",", names=True) for d in ("a", "b")]
     assert abs(fields[0]["std"].mean() - fields[1]["std"].mean()) < 0.05
     assert capped.final_metrics["rmse"] < exact.final_metrics["rmse"] + 0.05
+
+
+def square_lake(side: int) -> NavGraph:
+    return NavGraph(
+        Map(
+            mask=np.ones((side, side), bool),
+            cell_size_m=5.0,
+            reference={"row": 0, "col": 0, "lat": 37, "lon": -6},
+        )
+    )
+
+
+def test_gp_prior_draws_have_the_kernels_correlation_on_large_grids():
+    graph = square_lake(300)  # 90,000 nodes: a dense covariance would take 65 GB
+    field = GPPriorField(GPPriorField.Config(length_scale=20.0))
+    lags = {1: [], 4: [], 8: []}
+    for seed in range(4):
+        z = field.generate(graph, np.random.default_rng(seed))
+        z = graph.to_grid((z - z.mean()) / z.std())
+        for lag, seen in lags.items():
+            seen.append(np.mean(z[:, :-lag] * z[:, lag:]))
+    for lag, seen in lags.items():
+        assert np.mean(seen) == pytest.approx(np.exp(-0.5 * (5.0 * lag / 20.0) ** 2), abs=0.05)
+    again = field.generate(graph, np.random.default_rng(0))
+    assert np.array_equal(again, field.generate(graph, np.random.default_rng(0)))  # seeded
+
+
+def test_a_gp_prior_too_big_to_draw_is_refused_in_one_sentence(monkeypatch):
+    monkeypatch.setattr(GPPriorField, "MAX_CELLS", 10_000)
+    with pytest.raises(GuadalError, match=r"^environment\.ground_truth: .* 300 x 300 grid .*; use a") as err:
+        GPPriorField(GPPriorField.Config()).generate(square_lake(300), np.random.default_rng(0))
+    assert str(err.value).count(". ") == 0

@@ -39,9 +39,9 @@ def test_local_gp_stays_close_to_the_exact_gp(kernel):
     """The contract for Matérn kernels at the default 32 neighbours, with boats sampling in
     overlapping clumps (harder than the shipped missions): on a field spanning 4, mean within 0.2
     everywhere and 0.02 on average; std (prior 1) within 0.06 and 0.003. Four neighbours miss it."""
-    points = grid(30, 40)
+    points = grid(24, 32)
     field = np.sin(points[:, 0] / 25) + np.cos(points[:, 1] / 30)
-    nodes = boat_walks(30, 40, boats=3, hops=100)
+    nodes = boat_walks(24, 32, boats=3, hops=70)
     exact, local = IncrementalGP(kernel, points), LocalGP(kernel, points)
     for n in nodes:
         exact.add(points[n], field[n], point=n)
@@ -71,7 +71,7 @@ def test_with_every_sample_in_reach_it_is_the_exact_gp():
 
 def test_memory_grows_with_nodes_plus_samples_not_their_product():
     points = grid(200, 200)  # 40,000 nodes
-    nodes = boat_walks(200, 200, boats=4, hops=100, seed=2)
+    nodes = boat_walks(200, 200, boats=4, hops=50, seed=2)
     local = LocalGP(KernelConfig(), points)
     exact_bytes = IncrementalGP(KernelConfig(), points).memory_bytes(len(nodes))
     tracemalloc.start()
@@ -82,7 +82,7 @@ def test_memory_grows_with_nodes_plus_samples_not_their_product():
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    assert exact_bytes > 150e6  # 400 samples x 40,000 nodes: what the exact GP would hold
+    assert exact_bytes > 80e6  # 200 samples x 40,000 nodes: what the exact GP would hold
     assert local.memory_bytes() < 8 * 4 * len(points) + 200 * len(nodes)
     assert peak < 20e6  # its arrays, plus a fixed workspace for one chunk of nodes
     assert local.std.min() < 0.1  # and it did condition on the samples
