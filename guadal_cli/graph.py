@@ -12,6 +12,7 @@ per node or per edge. ``to_networkx()`` builds a networkx copy on demand, for us
 from __future__ import annotations
 
 from collections import OrderedDict
+from functools import lru_cache
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -64,6 +65,8 @@ class NavGraph:
         self.n_components, self.component = connected_components(self.adjacency, directed=False)
         self._tree = cKDTree(self.xy)
         self._attributes: dict[str, np.ndarray] = {}
+        # the neighbourhoods vehicles stand in are asked for many times a step: a bounded cache
+        self._adjacent = lru_cache(maxsize=4096)(self._adjacent_uncached)
         # shortest-path trees (distances + predecessors, 12 bytes a node each), least recently
         # used first; bounded in bytes so that a million-node lake keeps a few, a small one many
         self._trees: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
@@ -89,20 +92,20 @@ class NavGraph:
         return np.asarray(self._tree.query_ball_point(self.xy[node], radius_m + 1e-9), dtype=int)
 
     def neighbors(self, node: int) -> tuple[int, ...]:
-        return tuple(self._indices[self._indptr[node] : self._indptr[node + 1]].tolist())
+        return self._adjacent(node)[0]
 
     def edge_length(self, a: int, b: int) -> float:
         """Metres between two neighbouring nodes (KeyError if they are not neighbours)."""
-        k = self._edge_index(a, b)
-        if k < 0:
-            raise KeyError((a, b))
-        return float(self._lengths[k])
+        nodes, lengths = self._adjacent(a)
+        try:
+            return lengths[nodes.index(b)]
+        except ValueError:
+            raise KeyError((a, b)) from None
 
-    def _edge_index(self, a: int, b: int) -> int:
-        """Position of edge a-b in the CSR arrays, -1 when a and b are not neighbours."""
-        lo, hi = int(self._indptr[a]), int(self._indptr[a + 1])
-        hits = np.flatnonzero(self._indices[lo:hi] == b)
-        return lo + int(hits[0]) if len(hits) else -1
+    def _adjacent_uncached(self, node: int) -> tuple[tuple[int, ...], tuple[float, ...]]:
+        """Neighbours of ``node`` and the lengths of the edges to them, as Python tuples."""
+        part = slice(int(self._indptr[node]), int(self._indptr[node + 1]))
+        return tuple(self._indices[part].tolist()), tuple(self._lengths[part].tolist())
 
     # --- paths ---------------------------------------------------------------------------
     def _tree_from(self, source: int) -> tuple[np.ndarray, np.ndarray]:
@@ -135,7 +138,7 @@ class NavGraph:
         """
         if a == b:
             return [a]
-        if not avoid and self._edge_index(a, b) >= 0:
+        if not avoid and b in self.neighbors(a):
             return [a, b]  # neighbours: one edge is always the shortest way
         if avoid:
             keep = np.ones(self.n_nodes, dtype=bool)
