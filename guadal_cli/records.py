@@ -32,6 +32,7 @@ import platform
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from . import __version__
@@ -79,6 +80,21 @@ class _CsvStream:
         for row in rows:
             # floats (numpy's included) inline: they are most cells, and a call each adds up
             self._writer.writerow([format(v, ".10g") if isinstance(v, float) else fmt(v) for v in row])
+        self._fh.flush()
+
+    def write_columns(self, first: Sequence[int], *columns: Sequence) -> None:
+        """Whole columns at once: an integer id column, then numeric ones.
+
+        One ``str.format`` per row instead of one call per cell: the per-node fields of a
+        million-node lake are written in seconds. Cells come out as ``fmt`` writes them.
+        """
+        line = ",".join(["{}"] + ["{:.10g}"] * len(columns)) + "\n"
+        for start in range(0, len(first), 65536):  # in slices: bounded memory for the text
+            part = slice(start, start + 65536)
+            cells = [np.asarray(first[part]).tolist()] + [
+                np.asarray(c[part], float).tolist() for c in columns
+            ]
+            self._fh.write("".join(map(line.format, *cells)))
         self._fh.flush()
 
     def close(self) -> None:
@@ -264,10 +280,7 @@ class RunRecorder:
         columns = ["node", "row", "col", "lat", "lon", *names]
         stream = _CsvStream(self.directory / "fields.csv", columns)
         arrays = ([ground_truth] if ground_truth is not None else []) + [fields[k] for k in sorted(fields)]
-        stream.write(
-            [i, graph.rows[i], graph.cols[i], graph.lat[i], graph.lon[i], *(a[i] for a in arrays)]
-            for i in range(graph.n_nodes)
-        )
+        stream.write_columns(np.arange(graph.n_nodes), graph.rows, graph.cols, graph.lat, graph.lon, *arrays)
         stream.close()
 
     def finish(self, status: str, error: str | None = None, extra: dict | None = None) -> None:
