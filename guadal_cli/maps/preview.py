@@ -22,6 +22,7 @@ from .sources import corners_from_centres
 
 _WATER = ListedColormap(["#1f6fb4"])
 _GRID_LINES_UP_TO = 150  # cells per side; beyond, lines would hide the water
+_CELLS_DRAWN_UP_TO = 400  # cells per side: about the figure's width in pixels
 
 
 def _cell_edges(map_: Map) -> tuple[np.ndarray, np.ndarray]:
@@ -37,10 +38,29 @@ def _cell_edges(map_: Map) -> tuple[np.ndarray, np.ndarray]:
     return lon, lat
 
 
+def _coarsen(lon_e: np.ndarray, lat_e: np.ndarray, mask: np.ndarray, factor: int):
+    """Blocks of ``factor`` x ``factor`` cells drawn as one, water if any cell in it is."""
+    rows, cols = mask.shape
+    r, c = -(-rows // factor), -(-cols // factor)
+    padded = np.zeros((r * factor, c * factor), dtype=bool)
+    padded[:rows, :cols] = mask
+    coarse = padded.reshape(r, factor, c, factor).any(axis=(1, 3))
+    keep = np.ix_(np.minimum(np.arange(r + 1) * factor, rows), np.minimum(np.arange(c + 1) * factor, cols))
+    return lon_e[keep], lat_e[keep], coarse
+
+
 def _draw_map(ax, map_: Map, alpha: float) -> None:
-    """Water cells filled, every cell outlined (when there are few enough), node centres dotted."""
+    """Water cells filled, every cell outlined (when there are few enough), node centres dotted.
+
+    A grid with more cells per side than the image has pixels is drawn in blocks: a
+    million-cell quad mesh cost most of ``discretize``'s time and memory for the same picture.
+    """
     lon_e, lat_e = _cell_edges(map_)
-    water = np.ma.masked_where(~map_.mask, np.ones(map_.shape))
+    factor = -(-max(map_.shape) // _CELLS_DRAWN_UP_TO)
+    mask = map_.mask
+    if factor > 1:
+        lon_e, lat_e, mask = _coarsen(lon_e, lat_e, mask, factor)
+    water = np.ma.masked_where(~mask, np.ones(mask.shape))
     ax.pcolormesh(lon_e, lat_e, water, cmap=_WATER, vmin=0, vmax=1, alpha=alpha, linewidth=0)
     if max(map_.shape) <= _GRID_LINES_UP_TO:
         lines = [np.column_stack([lon_e[i], lat_e[i]]) for i in range(lon_e.shape[0])]
