@@ -165,6 +165,7 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--algorithms", nargs="+", default=list(ALGORITHMS))
+    parser.add_argument("--save", type=Path, help="also add the results to this JSON file (runs accumulate)")
     parser.add_argument("--accuracy", action="store_true", help="local GP against exact on the shipped maps")
     parser.add_argument("--one", nargs=2, metavar=("MISSION", "OUTPUT"), help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -204,6 +205,11 @@ def main() -> None:
                     flush=True,
                 )
 
+    if args.save:  # several invocations (one size at a time, say) make one table
+        earlier = json.loads(args.save.read_text()) if args.save.exists() else []
+        results = earlier + results
+        args.save.write_text(json.dumps(results))
+    algorithms = list(dict.fromkeys(r["algorithm"] for r in results))
     print(f"{os.cpu_count()} cores (shared), one BLAS thread, Python {sys.version.split()[0]}.\n")
     print(
         "| algorithm | nodes | steps | samples | model | CPU s | of which setup | wall s | peak RSS MB | CPU ms/step, 1st half | CPU ms/step, 2nd half |"
@@ -222,7 +228,7 @@ def main() -> None:
     print("\nScaling exponents (log-log slopes):\n")
     print("| algorithm | CPU vs nodes | CPU per step vs samples so far (largest lake) |")
     print("|---|---|---|")
-    for algorithm in args.algorithms:
+    for algorithm in algorithms:
         rows = [r for r in results if r["algorithm"] == algorithm]
         slope = (
             np.polyfit(np.log([r["nodes"] for r in rows]), np.log([r["cpu"] for r in rows]), 1)[0]
