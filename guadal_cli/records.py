@@ -283,6 +283,12 @@ class RunRecorder:
         stream.write_columns(np.arange(graph.n_nodes), graph.rows, graph.cols, graph.lat, graph.lon, *arrays)
         stream.close()
 
+    def record_event(self, kind: str, vehicle: int | None, time_s: float, message: str, detail: dict) -> None:
+        """A fleet event (an operator's control, ...), in the manifest at once."""
+        entry = {"kind": kind, "vehicle": vehicle, "time_s": time_s, "message": message, **detail}
+        self.manifest.setdefault("events", []).append(entry)
+        self._write_manifest()
+
     def finish(self, status: str, error: str | None = None, extra: dict | None = None) -> None:
         for stream in (self.metrics, self.trajectory, self.measurements):
             stream.close()

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import plugins
+from .controls import FleetInbox, MissionAborted, OperatorControls
 from .envs.base import Observation
 from .errors import GuadalError
 from .fleet.base import Fleet, Measurement
@@ -280,6 +281,9 @@ class MissionRunner:
                     fleet, record, self.graph, self.mission.fleet, self.environment.sense, str(self.output)
                 )
             fleet.reset(prep.initial_nodes)
+            self.operator = OperatorControls(
+                [FleetInbox(fleet)], self.recorder.record_event, self.n, hold=fleet.hold
+            )
             first = fleet.take_measurement()
             self.environment.update(first)
             self._record(fleet, first)
@@ -288,6 +292,8 @@ class MissionRunner:
             if fleet.lost and len(fleet.lost) == self.n:  # no vehicle left: not a finished mission
                 status = "aborted"
                 self.stop_reason = "every vehicle was lost: " + " ".join(fleet.lost.values())
+        except MissionAborted as exc:
+            status, error = "interrupted", str(exc)
         except KeyboardInterrupt:
             status, error = "interrupted", "stopped by the user (interrupt or terminate signal)"
             raise
@@ -335,6 +341,7 @@ class MissionRunner:
             if idle_decisions >= _IDLE_DECISIONS_BEFORE_STOP:
                 self.stop_reason = f"the algorithm's last {idle_decisions} decisions moved no vehicle"
                 return
+            self.operator.check(fleet.mission_time, [v for v in done if not done[v]])
             positions = dict(fleet.positions)
             targets = self._check_targets(
                 self.planner.next_targets(self._observation(fleet, done)), positions
@@ -348,6 +355,9 @@ class MissionRunner:
             pending: list[Measurement] = []
             waits: dict[int, int] = {}
             while any(paths.values()) and self.step < self.mission.max_steps:
+                self.operator.check(fleet.mission_time, [v for v in done if not done[v]])
+                for v in self.operator.held:
+                    paths[v] = []  # a held boat stays at its node; the planner decides again for it later
                 hops = self._next_hops(paths, positions, waits, fleet)
                 if not hops:
                     if not any(paths.values()):

@@ -103,6 +103,10 @@ class Fleet(ABC):
         """Take over a resumed run: vehicles at ``positions`` having covered ``distances``, clock at ``time_s``."""
         raise GuadalError(f"the {type(self).__name__} cannot take over a resumed run.")
 
+    def hold(self, vehicles: list[int] | None = None) -> None:
+        """Stop vehicles (default: all) where they are until their next hop: an operator's pause,
+        hold or abort. In simulation vehicles only move when told to, so there is nothing to do."""
+
     def health(self) -> dict:
         """Faults met on the way (messages dropped, vehicles lost), for the run manifest."""
         return {}

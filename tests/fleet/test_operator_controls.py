@@ -1,0 +1,105 @@
+"""At sitl, an operator's signed control on the planner's topic holds a boat and aborts the run.
+
+The same rules apply as for the web console's requests (``tests/web``); here they travel the
+fleet's own authenticated channel: the ``operator`` broker user, signed with the fleet key, for
+the running planner's session.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+import yaml
+from fleet_support import Inbox, login, wait_for
+from support import LAKE, base_mission
+
+from guadal_cli.channel import protocol as msg
+from guadal_cli.graph import NavGraph
+from guadal_cli.maps.format import load_map
+from guadal_cli.mission import auto_positions
+from guadal_cli.stack import Stack
+
+N = 2
+
+
+@pytest.fixture(scope="module")
+def stack():
+    graph = NavGraph(load_map(LAKE))
+    homes = [(float(graph.lat[n]), float(graph.lon[n])) for n in auto_positions(graph, N)]
+    s = Stack.launch(map_path=LAKE, vehicles=N, homes=homes, speedup=20, broker_kind="embedded", timeout=60)
+    yield s
+    s.down()
+
+
+def _rows(path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _events(run_dir) -> list[dict]:
+    try:
+        return json.loads((run_dir / "manifest.json").read_text()).get("events", [])
+    except (OSError, json.JSONDecodeError):
+        return []
+
+
+def test_signed_controls_on_the_topic_hold_a_boat_then_abort_the_mission(stack, tmp_path):
+    mission = base_mission(backend={**stack.planner_backend(), "offline_grace": 20})
+    mission["fleet"].update(vehicles=N, max_distance=3000.0)
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(mission))
+    run_dir = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "guadal_cli", "run", str(path), "-o", str(run_dir), "-q"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=os.environ.copy(),
+    )
+    operator = Inbox(stack.broker_port, login=login(stack, "operator"))
+    key = msg.Codec(stack.secrets.key_file.read_text().strip().encode())
+    control = msg.topic("guadal", None, "control")
+    status_topic = msg.topic("guadal", None, "status")
+    try:
+        operator.subscribe(status_topic)
+        online = operator.wait(
+            lambda: [m for m in operator.on(status_topic) if json.loads(m.payload).get("state") == "online"],
+            60,
+            "the planner's online status",
+        )
+        session = json.loads(online[-1].payload)["session"]
+        wait_for(lambda: len(_rows(run_dir / "metrics.csv")) > 3, 60, "the mission's first steps")
+
+        operator.client.publish(
+            control, key.encode(control, "control", session=session, id="h1", action="hold", vehicle=1), qos=1
+        ).wait_for_publish(10)
+        wait_for(lambda: _events(run_dir), 30, "the hold in the run's events")
+        held_from = int(_rows(run_dir / "metrics.csv")[-1]["step"])
+        wait_for(
+            lambda: int(_rows(run_dir / "metrics.csv")[-1]["step"]) > held_from + 3, 60, "steps while held"
+        )
+        operator.client.publish(
+            control, key.encode(control, "control", session=session, id="a1", action="abort"), qos=1
+        ).wait_for_publish(10)
+        assert proc.wait(timeout=120) == 0, proc.stderr.read()
+    finally:
+        operator.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    assert manifest["status"] == "interrupted"
+    assert manifest["error"] == "aborted by operator operator (control topic)"
+    assert [(e["kind"], e["action"], e["vehicle"]) for e in manifest["events"]] == [
+        ("control", "hold", 1),
+        ("control", "abort", None),
+    ]
+    plan = [r for r in _rows(run_dir / "trajectory.csv") if r["source"] == "plan"]
+    held = {r["node"] for r in plan if r["vehicle"] == "1" and int(r["step"]) > held_from}
+    moving = {r["node"] for r in plan if r["vehicle"] == "0" and int(r["step"]) > held_from}
+    assert len(held) == 1 and len(moving) > 1
