@@ -25,8 +25,9 @@ def register(app: typer.Typer) -> None:
             None,
             "--group-by",
             "-g",
-            help="Comma-separated dotted fields of the resolved mission to group by "
-            "(default: algorithm.type, or a sweep directory's axes).",
+            help="Comma-separated 'map', 'level' or dotted fields of the resolved mission to group by "
+            "(default: map,level,algorithm.type, or a sweep directory's axes; runs on different maps are "
+            "averaged only when asked).",
         ),
         x_axis: str = typer.Option(
             "distance",
@@ -41,7 +42,12 @@ def register(app: typer.Typer) -> None:
         animate: str = typer.Option(
             "gif",
             "--animate",
-            help="Step-by-step animation of the first run of each group: gif, mp4 (needs ffmpeg) or none.",
+            help="Step-by-step animations: gif, mp4 (needs ffmpeg) or none.",
+        ),
+        animate_runs: str = typer.Option(
+            "all",
+            "--animate-runs",
+            help="Which runs to animate: all, first (of each group) or comma-separated run names.",
         ),
         frames: int = typer.Option(
             120, "--frames", help="At most this many animation frames (steps are subsampled)."
@@ -67,6 +73,7 @@ def register(app: typer.Typer) -> None:
             metrics=[m.strip() for m in metrics.split(",") if m.strip()] if metrics else None,
             animate=None if animate.lower() == "none" else animate.lower(),
             max_frames=frames,
+            animate_runs=animate_runs,
         )
         quiet = as_csv or as_json or as_markdown
         try:
@@ -98,7 +105,7 @@ def register(app: typer.Typer) -> None:
             sys.stdout.write(result.markdown())
         else:
             for title, columns, rows in result.display_tables():
-                _show(title, columns, rows, drop_constant=("level", "vehicles"))
+                _show(title, columns, rows, drop_constant=("map", "level", "vehicles"))
             if output is not None:
                 console.print(f"report: {output / 'report.html'}")
 

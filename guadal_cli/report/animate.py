@@ -27,7 +27,7 @@ from .runs import Run, file_stem
 
 MAX_FRAMES = 120
 FPS = 8
-DPI = 80
+DPI = 100
 FORMATS = ("gif", "mp4")
 TITLES = {
     "ground_truth": "ground truth",
@@ -87,10 +87,101 @@ class Replay:
         return {k: np.asarray(v, dtype=float) for k, v in self.env.observation_fields().items()}
 
 
-def animate(
-    run: Run, out_dir: Path, fmt: str = "gif", max_frames: int = MAX_FRAMES
-) -> tuple[Path | None, str | None]:
-    """Write ``animation_<run>.<fmt>``; return its path and a warning sentence if it is degraded."""
+class Scene:
+    """The figure of one run's animation, laid out once; ``frame(step)`` redraws what changes.
+
+    One panel per field (ground truth, then the replayed model's fields), each with its colour
+    bar, the vehicles' trails and crosses, and the samples taken so far.
+    """
+
+    def __init__(self, run: Run, grid, plan: dict, replay: Replay | None, first: dict, truth):
+        self.run, self.grid, self.plan, self.replay = run, grid, plan, replay
+        panels = ["ground_truth"] if truth is not None else []
+        panels += list(first)[: 3 - len(panels)]
+        if not panels:
+            panels = [c for c, _ in field_panels(run)][:1] or ["water"]
+        self.panels = panels
+        steps_col = plan[next(iter(plan))]["step"]
+        self.last_step = int(np.nanmax(steps_col)) if len(steps_col) else 0
+        self.fig = fig = Figure(figsize=(4.6 * max(1, len(panels)), 3.9), layout="constrained")
+        self.images, self.trails, self.crosses, self.samples = [], [], [], []
+        for k, column in enumerate(panels):
+            ax = fig.add_subplot(1, len(panels), k + 1)
+            if column == "ground_truth":
+                static = truth
+            elif column in first:
+                static = first[column]  # the replayed model before any sample
+            else:
+                static = run.fields.get(column)  # no replay: the final field stays behind the vehicles
+            vmin, vmax = shared_limits(run, column)
+            if column in ("ground_truth", "mean") and vmin is None and truth is not None:
+                vmin, vmax = float(np.nanmin(truth)), float(np.nanmax(truth))
+            if column == "std" and replay is not None:
+                vmin, vmax = 0.0, float(np.nanmax(first["std"])) or 1.0
+            image = draw_field(
+                ax,
+                grid,
+                static if static is not None else np.zeros(len(grid.rows)),
+                "magma" if column == "std" else "viridis",
+                vmin,
+                vmax,
+            )
+            if column != "water":
+                fig.colorbar(image, ax=ax, fraction=0.04, pad=0.02)
+            self.images.append(image)
+            ax.set_title(TITLES.get(column, column), fontsize="small")
+            self.samples.append(
+                ax.scatter([], [], s=4, c="white", edgecolors="black", linewidths=0.3, zorder=3)
+            )
+            for v in plan:
+                (trail,) = ax.plot([], [], color=vehicle_colour(v), linewidth=1.0, alpha=0.9, zorder=4)
+                (cross,) = ax.plot(
+                    [],
+                    [],
+                    marker="x",
+                    markersize=9,
+                    markeredgewidth=2.2,
+                    color=vehicle_colour(v),
+                    linestyle="none",
+                    zorder=5,
+                )
+                self.trails.append((v, trail))
+                self.crosses.append((v, cross))
+        # room for the longest title
+        self.title = fig.suptitle(f"{run.name} ({run.algorithm}): step {self.last_step}, 0000 m")
+        self.canvas = FigureCanvasAgg(fig)
+        fig.set_dpi(DPI)
+        self.canvas.draw()
+        fig.set_layout_engine("none")  # lay out once; every frame has the same furniture
+
+    def frame(self, step: int) -> np.ndarray:
+        """The picture (RGB array) after ``step``."""
+        run, grid = self.run, self.grid
+        if self.replay is not None:
+            fields = self.replay.fields_at(step)
+            for column, image in zip(self.panels, self.images):
+                if column in fields:
+                    image.set_data(grid.place(fields[column]))
+        meas_steps = run.measurements.get("step", np.array([]))
+        taken = run.measurements.get("node", np.array([])).astype(int)[meas_steps <= step]
+        offsets = np.column_stack([grid.cols[taken], grid.rows[taken]]) if len(taken) else np.empty((0, 2))
+        for scatter in self.samples:
+            scatter.set_offsets(offsets)
+        for (v, trail), (_, cross) in zip(self.trails, self.crosses):
+            rows = self.plan[v]
+            upto = rows["step"] <= step
+            trail.set_data(rows["col"][upto], rows["row"][upto])
+            cross.set_data(rows["col"][upto][-1:], rows["row"][upto][-1:])
+        distance = run.metrics.get("total_distance", np.array([]))
+        at = np.searchsorted(run.metrics.get("step", np.array([])), step, side="right") - 1
+        dist = f", {distance[at]:.0f} m" if 0 <= at < len(distance) else ""
+        self.title.set_text(f"{run.name} ({run.algorithm}): step {step}{dist}")
+        self.canvas.draw()
+        return np.asarray(self.canvas.buffer_rgba())[..., :3].copy()
+
+
+def scene(run: Run) -> tuple[Scene | None, str | None]:
+    """The run's animation figure, or None; and a warning sentence if it is degraded."""
     grid = run_grid(run)
     plan = run.track("plan")
     if grid is None or not plan:
@@ -105,89 +196,19 @@ def animate(
     truth = run.fields.get("ground_truth")
     if truth is None and replay is not None and replay.env.ground_truth is not None:
         truth = np.asarray(replay.env.ground_truth, dtype=float)  # a killed run wrote no fields.csv
-    panels = ["ground_truth"] if truth is not None else []
-    panels += list(first)[: 3 - len(panels)]
-    if not panels:
-        panels = [c for c, _ in field_panels(run)][:1] or ["water"]
-    steps_col = plan[next(iter(plan))]["step"]
-    last = int(np.nanmax(steps_col)) if len(steps_col) else 0
-    steps = frame_steps(last, max_frames)
-    node_rows, node_cols = grid.rows, grid.cols  # indexed by node id
+    return Scene(run, grid, plan, replay, first, truth), warning
 
-    fig = Figure(figsize=(3.4 * max(1, len(panels)), 2.8), layout="constrained")
-    images, trails, crosses, samples = [], [], [], []
-    for k, column in enumerate(panels):
-        ax = fig.add_subplot(1, len(panels), k + 1)
-        if column == "ground_truth":
-            static = truth
-        elif column in first:
-            static = first[column]  # the replayed model before any sample
-        else:
-            static = run.fields.get(column)  # no replay: the final field stays behind the vehicles
-        vmin, vmax = shared_limits(run, column)
-        if column in ("ground_truth", "mean") and vmin is None and truth is not None:
-            vmin, vmax = float(np.nanmin(truth)), float(np.nanmax(truth))
-        if column == "std" and replay is not None:
-            vmin, vmax = 0.0, float(np.nanmax(first["std"])) or 1.0
-        images.append(
-            draw_field(
-                ax,
-                grid,
-                static if static is not None else np.zeros(len(grid.rows)),
-                "magma" if column == "std" else "viridis",
-                vmin,
-                vmax,
-            )
-        )
-        ax.set_title(TITLES.get(column, column), fontsize="small")
-        samples.append(ax.scatter([], [], s=4, c="white", edgecolors="black", linewidths=0.3, zorder=3))
-        for v in plan:
-            (trail,) = ax.plot([], [], color=vehicle_colour(v), linewidth=1.0, alpha=0.9, zorder=4)
-            (cross,) = ax.plot(
-                [],
-                [],
-                marker="x",
-                markersize=9,
-                markeredgewidth=2.2,
-                color=vehicle_colour(v),
-                linestyle="none",
-                zorder=5,
-            )
-            trails.append((v, trail))
-            crosses.append((v, cross))
-    title = fig.suptitle(f"{run.name} ({run.algorithm}): step {last}, 0000 m")  # room for the longest title
-    meas_steps = run.measurements.get("step", np.array([]))
-    meas_nodes = run.measurements.get("node", np.array([])).astype(int)
 
+def animate(
+    run: Run, out_dir: Path, fmt: str = "gif", max_frames: int = MAX_FRAMES
+) -> tuple[Path | None, str | None]:
+    """Write ``animation_<run>.<fmt>``; return its path and a warning sentence if it is degraded."""
+    built, warning = scene(run)
+    if built is None:
+        return None, warning
     path = out_dir / f"animation_{file_stem(run.name)}.{fmt}"
     out_dir.mkdir(parents=True, exist_ok=True)
-    canvas = FigureCanvasAgg(fig)
-    fig.set_dpi(DPI)
-    canvas.draw()
-    fig.set_layout_engine("none")  # lay out once; every frame has the same furniture
-    distance = run.metrics.get("total_distance", np.array([]))
-    metric_steps = run.metrics.get("step", np.array([]))
-    frames = []
-    for step in steps:
-        if replay is not None:
-            fields = replay.fields_at(step)
-            for column, image in zip(panels, images):
-                if column in fields:
-                    image.set_data(grid.place(fields[column]))
-        taken = meas_nodes[meas_steps <= step]
-        offsets = np.column_stack([node_cols[taken], node_rows[taken]]) if len(taken) else np.empty((0, 2))
-        for scatter in samples:
-            scatter.set_offsets(offsets)
-        for (v, trail), (_, cross) in zip(trails, crosses):
-            rows = plan[v]
-            upto = rows["step"] <= step
-            trail.set_data(rows["col"][upto], rows["row"][upto])
-            cross.set_data(rows["col"][upto][-1:], rows["row"][upto][-1:])
-        at = np.searchsorted(metric_steps, step, side="right") - 1
-        dist = f", {distance[at]:.0f} m" if 0 <= at < len(distance) else ""
-        title.set_text(f"{run.name} ({run.algorithm}): step {step}{dist}")
-        canvas.draw()
-        frames.append(np.asarray(canvas.buffer_rgba())[..., :3].copy())
+    frames = [built.frame(step) for step in frame_steps(built.last_step, max_frames)]
     (write_gif if fmt == "gif" else write_mp4)(frames, path)
     return path, warning
 

@@ -5,7 +5,7 @@ Layout of the output folder::
     report.html            everything below, tables inline and images embedded
     tables/                runs.csv, groups.csv, report.json, report.md
     figures/               metric_<m>_vs_<x>, map_<run>, track_<run> (PNG and SVG)
-    animations/            animation_<run>.gif or .mp4 (first run of each group)
+    animations/            animation_<run>.gif or .mp4 (every run, the first of each group, or chosen ones)
     geo/                   <run>.geojson, <run>.kml, <run>_v<k>.plan, <run>_v<k>.waypoints
 """
 
@@ -20,9 +20,10 @@ from ..errors import GuadalError
 from . import geo, plots, tables
 from . import html as html_page
 from .animate import FORMATS, MAX_FRAMES, animate, ffmpeg_available
-from .runs import Group, Run, group_runs, map_warning, status_warning
+from .runs import Group, Run, group_runs, mixed_map_warning, status_warning
 
-DEFAULT_GROUP_BY = ["algorithm.type"]
+#: runs are compared only with runs on the same map at the same level unless --group-by says otherwise
+DEFAULT_GROUP_BY = ["map", "level", "algorithm.type"]
 
 
 @dataclass
@@ -31,6 +32,7 @@ class Options:
     x_axis: str = "distance"
     metrics: list[str] | None = None  # curves to draw; None = coverage and every task metric
     animate: str | None = "gif"  # gif, mp4 or None
+    animate_runs: str = "all"  # all, first (of each group) or comma-separated run names
     max_frames: int = MAX_FRAMES
 
 
@@ -123,7 +125,7 @@ def build(runs: list[Run], options: Options) -> Report:
             summary = summaries.get(id(run), {})
             row += [summary.get(c, float("nan")) for c in extra]
     group_columns, group_rows = tables.group_table(groups, group_by, names)
-    warnings += [w for w in (map_warning(runs), status_warning(runs)) if w]
+    warnings += [w for w in (mixed_map_warning(groups), status_warning(runs)) if w]
     return Report(runs, groups, group_by, run_columns, run_rows, group_columns, group_rows, warnings)
 
 
@@ -140,6 +142,23 @@ def curve_metrics(runs: list[Run], wanted: list[str] | None) -> list[str]:
     return wanted
 
 
+def animated_runs(report: Report, which: str) -> list[Run]:
+    """Every run, the first of each group, or the runs named (a name must be one of the report's)."""
+    if which == "all":
+        return list(report.runs)
+    if which == "first":
+        return [g.runs[0] for g in report.groups]
+    names = [n.strip() for n in which.split(",") if n.strip()]
+    by_name = {r.name: r for r in report.runs}
+    unknown = [n for n in names if n not in by_name]
+    if unknown or not names:
+        raise GuadalError(
+            f"--animate-runs must be 'all', 'first' or names of runs in this report "
+            f"({', '.join(by_name)}); got '{which}'."
+        )
+    return [by_name[n] for n in names]
+
+
 def write(
     report: Report, out_dir: Path, options: Options, on_file: Callable[[str], None] = lambda what: None
 ) -> list[str]:
@@ -152,6 +171,7 @@ def write(
             "--animate mp4 needs an ffmpeg program on the PATH, and none was found; use --animate gif."
         )
     metrics = curve_metrics(report.runs, options.metrics)
+    to_animate = animated_runs(report, options.animate_runs) if options.animate else []
     extra_warnings: list[str] = []
     files = report.files
 
@@ -180,8 +200,7 @@ def write(
 
     anims = []
     if options.animate:
-        for group in report.groups:
-            run = group.runs[0]
+        for run in to_animate:
             on_file(f"animation {run.name}")
             path, warning = animate(run, out_dir / "animations", options.animate, options.max_frames)
             if warning:
@@ -190,15 +209,18 @@ def write(
                 anims.append((path, f"{run.name} step by step ({run.algorithm}, seed {run.seed})"))
 
     gdir = out_dir / "geo"
+    exports = {}
     for run in report.runs:
         on_file(f"geo {run.name}")
-        files += geo.export_run(run, gdir)
+        exports[run.name] = geo.export_run(run, gdir)
+        files += exports[run.name]
 
     for items in (curve_figs, map_figs, track_figs, anims):
         files += [p for p, _ in items]
     report.warnings += extra_warnings
     (tdir / "report.json").write_text(json.dumps(report.as_json(), indent=2) + "\n")
     files.append(tdir / "report.json")
+    tables_files = [tdir / n for n in ("runs.csv", "groups.csv", "report.json", "report.md")]
 
     pngs = lambda items: "".join(html_page.figure(p, c) for p, c in items if p.suffix != ".svg")  # noqa: E731
     page = html_page.page(
@@ -210,6 +232,7 @@ def write(
             ("Final maps", pngs(map_figs)),
             ("Planned path and GPS track", pngs(track_figs)),
             ("Step by step", pngs(anims)),
+            ("Files", html_page.file_links(out_dir, tables_files, exports)),
         ],
     )
     (out_dir / "report.html").write_text(page)

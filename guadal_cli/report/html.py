@@ -1,7 +1,9 @@
 """One self-contained HTML page per report: tables inline, images as data URIs.
 
 A page that embeds everything can be mailed, attached to a lab notebook or opened offline
-years later; nothing it shows lives in another file.
+years later; nothing it shows lives in another file. The files meant for other programs
+(tables, GeoJSON, KML, ground-station plans) are linked by relative paths, so the links work
+wherever the report folder is moved.
 """
 
 from __future__ import annotations
@@ -37,6 +39,22 @@ def figure(path: Path, caption: str) -> str:
     else:
         body = f'<img alt="{html.escape(caption)}" src="{src}">'
     return f"<figure>{body}<figcaption>{html.escape(caption)}</figcaption></figure>"
+
+
+def file_links(out_dir: Path, table_files: list[Path], exports: dict[str, list[Path]]) -> str:
+    """A list of links to the report's tables and, per run, its geo and ground-station files."""
+
+    def link(path: Path) -> str:
+        rel = path.relative_to(out_dir).as_posix()
+        return f'<a href="{html.escape(rel)}">{html.escape(path.name)}</a>'
+
+    items = ["<li>tables: " + ", ".join(link(p) for p in table_files) + "</li>"]
+    items += [
+        f"<li>{html.escape(name)}: " + ", ".join(link(p) for p in paths) + "</li>"
+        for name, paths in exports.items()
+        if paths
+    ]
+    return "<ul>" + "".join(items) + "</ul>"
 
 
 def page(title: str, warnings: list[str], sections: list[tuple[str, str]]) -> str:

@@ -67,6 +67,22 @@ def band(
     return mean, std, count
 
 
+def group_curve(
+    group: Group, x_col: str, metric: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int] | None:
+    """A group's mean and std of ``metric`` on a grid of ``x_col``, and how many runs they average.
+
+    The grid spans only what every run covers: past the end of the shortest run a mean would
+    jump from n runs to fewer.
+    """
+    curves = [c for c in (_curve(r, x_col, metric) for r in group.counted) if c is not None]
+    if not curves:
+        return None
+    grid = np.linspace(max(c[0][0] for c in curves), min(c[0][-1] for c in curves), GRID_POINTS)
+    mean, std, _ = band(curves, grid)
+    return grid, mean, std, len(curves)
+
+
 def metric_curves(groups: list[Group], metric: str, x_axis: str, out_dir: Path) -> list[Path]:
     """One curve per group (mean over its runs) with a ±1 std band, against distance or time."""
     x_col, x_label = X_AXES[x_axis]
@@ -74,21 +90,20 @@ def metric_curves(groups: list[Group], metric: str, x_axis: str, out_dir: Path) 
     ax = fig.add_subplot()
     drawn = 0
     for i, group in enumerate(groups):
-        curves = [c for c in (_curve(r, x_col, metric) for r in group.counted) if c is not None]
-        if not curves:
+        curve = group_curve(group, x_col, metric)
+        if curve is None:
             continue
-        grid = np.linspace(0.0, max(c[0][-1] for c in curves), GRID_POINTS)
-        mean, std, count = band(curves, grid)
+        grid, mean, std, n = curve
         colour = colormaps["tab10"].colors[i % 10]
-        ax.plot(grid, mean, color=colour, label=f"{group.label} (n={len(curves)})")
-        if len(curves) > 1:
+        ax.plot(grid, mean, color=colour, label=f"{group.label} (n={n})")
+        if n > 1:
             ax.fill_between(grid, mean - std, mean + std, color=colour, alpha=0.2, linewidth=0)
         drawn += 1
     if not drawn:
         return []
     ax.set_xlabel(x_label)
     ax.set_ylabel(metric)
-    ax.set_title(f"{metric} against {x_axis} (mean ± std across runs)")
+    ax.set_title(f"{metric} against {x_axis} (mean ± std across runs, up to the shortest run)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small", loc="upper right")
     return save(fig, out_dir, f"metric_{file_stem(metric)}_vs_{x_axis}")

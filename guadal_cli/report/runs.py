@@ -272,29 +272,58 @@ def _key_text(value) -> str:
     return str(value)
 
 
+#: group fields that are not mission paths: what a run was made on and at which level
+RUN_FIELDS = ("map", "level")
+
+
+def map_labels(runs: list[Run]) -> dict[int, str]:
+    """Per run (by id), its map's name; maps that share a name get their size added to tell them apart."""
+    keys_by_name: dict[str, set] = {}
+    for r in runs:
+        keys_by_name.setdefault(r.map_name, set()).add(r.map_key)
+    labels = {}
+    for r in runs:
+        name = r.map_name
+        if len(keys_by_name[name]) > 1:
+            _, shape, nodes = r.map_key
+            name = f"{name} ({'x'.join(str(n) for n in shape)}, {nodes} nodes)"
+        labels[id(r)] = name
+    return labels
+
+
 def group_runs(runs: list[Run], fields: list[str]) -> list[Group]:
-    """Runs grouped by the values of dotted mission fields, in order of first appearance."""
+    """Runs grouped by ``map``, ``level`` or dotted mission fields, in order of first appearance."""
     for name in fields:
-        if all(mission_field(r.mission, name) is None for r in runs):
+        if name not in RUN_FIELDS and all(mission_field(r.mission, name) is None for r in runs):
             raise GuadalError(
-                f"--group-by field '{name}' is in none of the runs' missions; give dotted paths into "
-                "mission.resolved.yaml such as algorithm.type, fleet.vehicles or environment.type."
+                f"--group-by field '{name}' is in none of the runs' missions; give 'map', 'level' or dotted "
+                "paths into mission.resolved.yaml such as algorithm.type, fleet.vehicles or environment.type."
             )
+    maps = map_labels(runs)
     groups: dict[tuple, Group] = {}
     for run in runs:
-        key = tuple(_key_text(mission_field(run.mission, f)) for f in fields)
+        key = tuple(
+            maps[id(run)]
+            if f == "map"
+            else run.level
+            if f == "level"
+            else _key_text(mission_field(run.mission, f))
+            for f in fields
+        )
         groups.setdefault(key, Group(key)).runs.append(run)
     return list(groups.values())
 
 
-def map_warning(runs: list[Run]) -> str | None:
-    """One sentence when the runs were made on different maps."""
-    counts = Counter(r.map_key for r in runs)
-    if len(counts) <= 1:
+def mixed_map_warning(groups: list[Group]) -> str | None:
+    """One sentence when a group averages runs made on different maps (only an explicit --group-by does)."""
+    mixed = [g for g in groups if len({r.map_key for r in g.runs}) > 1]
+    if not mixed:
         return None
-    names = Counter(r.map_name for r in runs)
-    listed = ", ".join(f"{name} ({n} run{'s' if n > 1 else ''})" for name, n in names.items())
-    return f"runs were made on {len(counts)} different maps ({listed}); their metrics are not directly comparable."
+    listed = "; ".join(f"'{g.label}' ({', '.join(sorted(set(map_labels(g.runs).values())))})" for g in mixed)
+    return (
+        f"{len(mixed)} group{'s' if len(mixed) > 1 else ''} average runs made on different maps, as --group-by "
+        f"asked: {listed}; their metrics are not directly comparable (add 'map' to --group-by to split them)."
+    )
 
 
 def status_warning(runs: list[Run]) -> str | None:

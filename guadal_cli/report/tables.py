@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from .runs import Group, Run
+from .runs import Group, Run, map_labels
 
 #: the general columns every run has, in table order (task metrics follow)
 GENERAL_COLUMNS = ("total_distance", "time_s", "samples", "coverage")
@@ -31,7 +31,8 @@ def metric_names(runs: list[Run]) -> list[str]:
 
 
 def run_table(runs: list[Run], metrics: list[str]) -> tuple[list[str], list[list]]:
-    columns = ["run", "status", "algorithm", "seed", "level", "vehicles", "steps", *metrics]
+    columns = ["run", "status", "algorithm", "seed", "map", "level", "vehicles", "steps", *metrics]
+    maps = map_labels(runs)
     rows = []
     for r in runs:
         vehicles = r.manifest.get("vehicles")
@@ -41,6 +42,7 @@ def run_table(runs: list[Run], metrics: list[str]) -> tuple[list[str], list[list
                 r.status,
                 r.algorithm,
                 r.seed,
+                maps[id(r)],
                 r.level,
                 vehicles,
                 r.steps,

@@ -15,8 +15,10 @@ import pytest
 from PIL import Image
 from report_support import invoke
 
+from guadal_cli.report.animate import scene
+from guadal_cli.report.build import Options, build
 from guadal_cli.report.geo import route
-from guadal_cli.report.plots import distance_to_polyline
+from guadal_cli.report.plots import distance_to_polyline, group_curve
 from guadal_cli.report.runs import find_runs
 
 METRICS = ("coverage", "rmse", "mean_std", "max_std")
@@ -54,16 +56,77 @@ def test_figures_exist_as_png_and_svg_with_sane_sizes(report_dir):
     assert not (figs / "track_greedy-1.png").exists()
 
 
-def test_one_animation_per_group_with_bounded_changing_frames(report_dir):
+def test_every_run_is_animated_with_bounded_changing_frames(report_dir):
     gifs = sorted((report_dir / "animations").glob("*.gif"))
-    assert [g.name for g in gifs] == ["animation_greedy-1.gif", "animation_lawnmower-1.gif"]
-    with Image.open(gifs[0]) as im:
+    names = ["gps-1", "greedy-1", "greedy-2", "lawnmower-1", "lawnmower-2"]
+    assert [g.name for g in gifs] == [f"animation_{n}.gif" for n in names]
+    with Image.open(report_dir / "animations" / "animation_greedy-1.gif") as im:
         assert 2 <= im.n_frames <= 10
-        assert im.size[0] >= 300 and im.size[1] >= 150
+        assert im.size[0] >= 1200 and im.size[1] >= 350  # three panels people can read
         first = np.asarray(im.convert("RGB"))
         im.seek(im.n_frames - 1)
         last = np.asarray(im.convert("RGB"))
     assert (first != last).any()  # the vehicles moved and the model changed
+
+
+def test_each_animated_field_has_a_colour_bar_on_its_scale(runs_root):
+    (run,) = find_runs([runs_root / "greedy-1"])
+    built, warning = scene(run)
+    assert warning is None and built.panels == ["ground_truth", "mean", "std"]
+    bars = [image.colorbar for image in built.images]
+    assert all(bar is not None for bar in bars)
+    truth = run.fields["ground_truth"]
+    assert bars[0].vmin <= truth.min() and bars[0].vmax >= truth.max()
+    assert bars[2].vmin == 0.0  # the std bar starts at no uncertainty
+
+
+def test_animate_runs_first_or_by_name(runs_root, tmp_path):
+    out = tmp_path / "first"
+    result = invoke(
+        "report", runs_root, "-o", out, "--frames", "3", "--animate-runs", "first", "--metrics", "rmse"
+    )
+    assert result.exit_code == 0, result.stderr
+    assert sorted(p.name for p in (out / "animations").iterdir()) == [
+        "animation_greedy-1.gif",
+        "animation_lawnmower-1.gif",
+    ]
+    out = tmp_path / "chosen"
+    result = invoke(
+        "report", runs_root, "-o", out, "--frames", "3", "--animate-runs", "lawnmower-2", "--metrics", "rmse"
+    )
+    assert result.exit_code == 0, result.stderr
+    assert [p.name for p in (out / "animations").iterdir()] == ["animation_lawnmower-2.gif"]
+    result = invoke("report", runs_root, "-o", tmp_path / "bad", "--animate-runs", "nosuch")
+    assert result.exit_code == 2 and "--animate-runs must be" in result.stderr and "greedy-1" in result.stderr
+
+
+def test_group_mean_curve_stops_where_the_shortest_run_ends(runs_root, tmp_path):
+    folder = tmp_path / "runs"
+    shutil.copytree(runs_root / "greedy-1", folder / "long")
+    shutil.copytree(runs_root / "greedy-2", folder / "short")
+    metrics = folder / "short" / "metrics.csv"
+    lines = metrics.read_text().splitlines(keepends=True)
+    metrics.write_text("".join(lines[: len(lines) // 2]))  # as if it had stopped halfway
+    report = build(find_runs([folder]), Options())
+    (group,) = report.groups
+    grid, mean, std, n = group_curve(group, "total_distance", "rmse")
+    short_end = float(lines[len(lines) // 2 - 1].split(",")[lines[0].split(",").index("total_distance")])
+    assert n == 2 and grid[-1] == pytest.approx(short_end)
+    assert not np.isnan(mean).any() and not np.isnan(std).any()
+
+
+def test_html_links_the_tables_and_exports(report_dir):
+    page = (report_dir / "report.html").read_text()
+    links = re.findall(r'href="([^"]*)"', page)
+    for expected in (
+        "tables/runs.csv",
+        "tables/report.json",
+        "geo/gps-1.geojson",
+        "geo/greedy-1.kml",
+        "geo/greedy-1_v0.plan",
+    ):
+        assert expected in links
+    assert all((report_dir / link).is_file() for link in links)
 
 
 def test_html_is_one_self_contained_page(report_dir):
@@ -84,7 +147,11 @@ def test_tables_written_to_the_report_folder(report_dir, runs_root):
         last = list(csv.DictReader(fh))[-1]
     assert float(rows["greedy-1"]["rmse"]) == float(last["rmse"])
     data = json.loads((report_dir / "tables" / "report.json").read_text())
-    assert {g["algorithm.type"]: g["runs"] for g in data["groups"]} == {"greedy": 3, "lawnmower": 2}
+    assert sorted((g["level"], g["algorithm.type"], g["runs"]) for g in data["groups"]) == [
+        ("report_support:GpsTrackBackend", "greedy", 1),
+        ("sim", "greedy", 2),
+        ("sim", "lawnmower", 2),
+    ]
 
 
 def test_geojson_is_a_feature_collection_in_lon_lat_order(report_dir, runs_root):

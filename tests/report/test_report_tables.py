@@ -36,8 +36,10 @@ def test_run_rows_are_the_last_rows_of_metrics_csv(runs_root):
 
 def test_two_seeds_of_two_algorithms_group_into_two_groups_of_two(runs_root):
     report = build(find_runs([runs_root]), Options())
-    groups = {row[0]: dict(zip(report.group_columns, row)) for row in report.group_rows}
+    assert report.group_by == ["map", "level", "algorithm.type"]
+    groups = {row[2]: dict(zip(report.group_columns, row)) for row in report.group_rows}
     assert set(groups) == {"greedy", "lawnmower"}
+    assert {(g["map"], g["level"]) for g in groups.values()} == {("urban_lake", "sim")}
     for algorithm, group in groups.items():
         finals = [last_metrics_row(runs_root / f"{algorithm}-{seed}") for seed in (1, 2)]
         assert group["runs"] == 2
@@ -82,7 +84,8 @@ def test_cli_json_csv_and_markdown_agree_with_the_csvs(runs_root):
 
     out = invoke("report", runs_root, "--markdown")
     assert out.exit_code == 0, out.stderr
-    assert "| run | status |" in out.stdout and "| greedy | complete | 2 |" in out.stdout
+    assert "| run | status |" in out.stdout and "| urban_lake | sim | greedy | complete | 2 |" in out.stdout
+    assert "by map, level, algorithm.type" in out.stdout
 
 
 def test_no_runs_found_exits_2_with_one_sentence(tmp_path):
@@ -133,14 +136,37 @@ def test_interrupted_and_killed_runs_are_labelled_and_left_out_of_means(runs_roo
     assert "| greedy-2 | interrupted |" in out.stdout and "| greedy-killed | unfinished |" in out.stdout
 
 
-def test_runs_on_different_maps_get_a_warning(runs_root, tmp_path):
+def test_runs_on_different_maps_are_not_averaged_unless_asked(runs_root, tmp_path):
     other = run_mission(tmp_path, "greedy", 1, map=str(ROOT / "maps" / "reservoir.json"))
-    report = build(find_runs([runs_root / "greedy-1", other]), Options())
-    assert any("different maps" in w for w in report.warnings)
-    out = invoke("report", runs_root / "greedy-1", other)
-    assert out.exit_code == 0
-    assert "different maps" in out.stderr
-    assert not build(find_runs([runs_root]), Options()).warnings
+    runs = find_runs([runs_root / "greedy-1", runs_root / "greedy-2", other])
+    report = build(runs, Options())
+    assert sorted((row[0], row[4]) for row in report.group_rows) == [("reservoir", 1), ("urban_lake", 2)]
+    assert not report.warnings
+    out = invoke("report", runs_root / "greedy-1", runs_root / "greedy-2", other)
+    assert out.exit_code == 0 and out.stderr == ""
+    assert "by map, level, algorithm.type" in out.stdout
+
+    asked = build(runs, Options(group_by=["algorithm.type"]))
+    ((algorithm, _, n, *_),) = asked.group_rows
+    assert (algorithm, n) == ("greedy", 3)
+    assert any("different maps, as --group-by asked" in w and "reservoir" in w for w in asked.warnings)
+
+
+def test_sim_and_sitl_runs_of_one_algorithm_are_grouped_apart(runs_root, tmp_path):
+    sitl = tmp_path / "greedy-sitl"
+    shutil.copytree(runs_root / "greedy-2", sitl)
+    manifest = json.loads((sitl / "manifest.json").read_text())
+    manifest["level"] = "sitl"
+    (sitl / "manifest.json").write_text(json.dumps(manifest))
+    report = build(find_runs([runs_root / "greedy-1", sitl]), Options())
+    assert [(row[1], row[2], row[4]) for row in report.group_rows] == [
+        ("sim", "greedy", 1),
+        ("sitl", "greedy", 1),
+    ]
+    assert (
+        len(build(find_runs([runs_root / "greedy-1", sitl]), Options(group_by=["algorithm.type"])).groups)
+        == 1
+    )
 
 
 def test_a_killed_run_is_reported_as_unfinished_with_what_it_wrote(tmp_path):
@@ -199,8 +225,8 @@ def test_runs_of_different_environments_are_grouped_apart(runs_root, tmp_path):
     (other / "mission.resolved.yaml").write_text(yaml.safe_dump(mission))
 
     report = build(find_runs([runs_root / "greedy-1", other]), Options())
-    assert report.group_by == ["environment.type", "algorithm.type"]
-    assert sorted(tuple(r[:2]) for r in report.group_rows) == [("another_env", "greedy"), ("gp", "greedy")]
+    assert report.group_by == ["environment.type", "map", "level", "algorithm.type"]
+    assert sorted((r[0], r[3]) for r in report.group_rows) == [("another_env", "greedy"), ("gp", "greedy")]
     assert any("2 environments" in w for w in report.warnings)
     titles = [t for t, _, _ in report.display_tables()]
     assert (
