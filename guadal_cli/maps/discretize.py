@@ -175,6 +175,9 @@ def discretize(source, options: DiscretizeOptions, name: str = "", description: 
             f"holds {water_m2:,.0f} m² of water; choose a smaller --cell-size."
         )
     rows, cols, reference = _grid_for(source, cell)
+    if options.cell_size_m is None and getattr(source, "regular", False):
+        # the source's own cells, repeated: its water cells become the map's water cells one for one
+        reference["lat"], reference["lon"] = source.nearest_centre(reference["lat"], reference["lon"])
     notes = []
     k = options.supersample
     while k > 1 and rows * cols * k * k > MAX_SAMPLES:

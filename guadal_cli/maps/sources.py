@@ -97,6 +97,28 @@ def corners_from_centres(centres: np.ndarray) -> np.ndarray:
     return 0.25 * (padded[:-1, :-1] + padded[1:, :-1] + padded[:-1, 1:] + padded[1:, 1:])
 
 
+#: how far (fraction of a cell) a regular grid's centres may stray from their row, column and spacing
+_REGULAR_TOLERANCE = 0.1
+
+
+def _regular_spacing(cx: np.ndarray, cy: np.ndarray) -> tuple[float, float] | None:
+    """(east, north) spacing in metres of cell centres on north-up rows and columns, else None."""
+    rows, cols = cx.shape
+    if rows < 2 or cols < 2:
+        return None
+    width = float(cx[:, -1].mean() - cx[:, 0].mean()) / (cols - 1)
+    height = float(cy[0].mean() - cy[-1].mean()) / (rows - 1)
+    if not (width > 0 and height > 0):
+        return None
+    slack_x, slack_y = _REGULAR_TOLERANCE * width, _REGULAR_TOLERANCE * height
+    straight = np.ptp(cy, axis=1).max() <= slack_y and np.ptp(cx, axis=0).max() <= slack_x
+    even = (
+        np.abs(np.diff(cx, axis=1) - width).max() <= slack_x
+        and np.abs(np.diff(cy, axis=0) + height).max() <= slack_y
+    )
+    return (width, height) if straight and even else None
+
+
 @dataclass
 class CoordinateGridSource:
     """A grid mask with a lat/lon for every cell centre or corner; cells need not be square."""
@@ -150,11 +172,28 @@ class CoordinateGridSource:
             (kx[1:, 1:] - kx[:-1, :-1]) * (ky[1:, :-1] - ky[:-1, 1:])
             - (ky[1:, 1:] - ky[:-1, :-1]) * (kx[1:, :-1] - kx[:-1, 1:])
         )
+        self.spacing_m = _regular_spacing(cx, cy)
+
+    @property
+    def regular(self) -> bool:
+        """North-up rows and columns at an even spacing (to within rounding of the coordinates)."""
+        return self.spacing_m is not None
 
     @property
     def default_cell_size_m(self) -> float:
-        """The square cell of the same area as the source's typical cell."""
-        return math.sqrt(self.cell_width_m * self.cell_height_m)
+        """The square cell of the same area as the source's typical cell.
+
+        On a regular grid the mean spacing is used: coordinates written with few decimals make
+        single cells uneven, and a median cell would drift across the grid.
+        """
+        width, height = self.spacing_m or (self.cell_width_m, self.cell_height_m)
+        return math.sqrt(width * height)
+
+    def nearest_centre(self, lat: float, lon: float) -> tuple[float, float]:
+        """The source cell centre nearest to a point: output cells placed on it repeat the source's cells."""
+        x, y = self.projection.to_xy(lat, lon)
+        _, i = self._tree.query([float(x), float(y)])
+        return float(self.centre_lat.ravel()[i]), float(self.centre_lon.ravel()[i])
 
     @property
     def bounds(self) -> Bounds:

@@ -303,3 +303,40 @@ def test_geojson_multipolygon_and_outside_lonlat_refused(tmp_path):
     write_geojson(path, {"type": "LineString", "coordinates": [[-5.98, 37.4], [-5.97, 37.41]]})
     with pytest.raises(GuadalError, match="holds a LineString; guadal reads Polygon and MultiPolygon"):
         open_source(path)
+
+
+@pytest.mark.parametrize("decimals", [9, 6])
+def test_regular_coordinate_grid_without_cell_size_keeps_its_own_cells(tmp_path, decimals):
+    """The paper-scale lake as a mask plus cell centres (rounded as files often are) stays 351 nodes."""
+    from support import LAKE
+
+    from guadal_cli.maps.format import load_map
+
+    lake = load_map(LAKE)
+    mask_path, grid_path = tmp_path / "lake.csv", tmp_path / "lake_latlon.txt"
+    np.savetxt(mask_path, lake.mask.astype(int), fmt="%d", delimiter=",")
+    grid_path.write_text(
+        "\n".join(
+            ";".join(f'"{a:.{decimals}f},{b:.{decimals}f}"' for a, b in zip(r1, r2))
+            for r1, r2 in zip(lake.lat, lake.lon)
+        )
+        + "\n"
+    )
+    source = open_source(mask_path, latlon_grid=grid_path)
+    assert source.regular
+    m = discretize(source, DiscretizeOptions()).map
+    assert m.water_nodes == lake.water_nodes == 351
+    assert m.cell_size_m == pytest.approx(lake.cell_size_m, rel=1e-3)
+    # cell for cell: every output water cell sits on a source water cell centre
+    x, y = lake.projection.to_xy(m.lat[m.mask], m.lon[m.mask])
+    cx, cy = lake.projection.to_xy(lake.lat[lake.mask], lake.lon[lake.mask])
+    gap = np.hypot(x[:, None] - cx[None, :], y[:, None] - cy[None, :]).min(axis=1)
+    assert gap.max() < 0.5  # metres, on 5 m cells
+
+
+def test_irregular_coordinate_grid_is_resampled(tmp_path):
+    mask_path, grid_path = tmp_path / "lake.csv", tmp_path / "lake_latlon.txt"
+    clat, clon, *_ = draw_grid(mask_path, L_SHAPE, dx=5.0, dy=5.0, half_w=60, half_h=60)
+    clon = clon + 0.00002 * np.arange(clon.shape[0])[:, None]  # a sheared grid: columns lean east
+    write_latlon_grid(grid_path, clat, clon)
+    assert not open_source(mask_path, latlon_grid=grid_path).regular
