@@ -10,9 +10,10 @@ Layout (format ``guadal-run`` version 1, described for users in ``docs/run-direc
     fields.csv              per node at the end: ground truth (if any) and the model's fields
 
 ``manifest.json`` says ``"status": "running"`` from the first byte; it becomes ``complete``,
-``interrupted`` or ``failed`` at the end. A directory still saying ``running`` after its
-process is gone was killed. Wall-clock times live only in the manifest so that the CSVs of
-the same mission and seed are identical byte for byte at ``sim`` level.
+``interrupted`` or ``failed`` at the end. While running it is rewritten (atomically) every few
+seconds with the progress so far: steps, mission time and distances. A directory still saying
+``running`` after its process is gone was killed. Wall-clock times live only in the manifest so
+that the CSVs of the same mission and seed are identical byte for byte at ``sim`` level.
 
 The writing process holds an exclusive lock on ``run.lock`` for as long as it writes, and the
 kernel drops it however the process ends (even ``kill -9``): that is how ``guadal resume`` tells
@@ -29,6 +30,7 @@ import hashlib
 import json
 import os
 import platform
+import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
@@ -38,6 +40,8 @@ import yaml
 from . import __version__
 from .errors import GuadalError
 
+#: wall seconds between rewrites of a running manifest's progress
+PROGRESS_EVERY_S = 3.0
 RUN_FORMAT = "guadal-run"
 RUN_VERSION = 1
 TRAJECTORY_COLUMNS = ["step", "vehicle", "node", "row", "col", "lat", "lon", "distance", "source", "time_s"]
@@ -59,6 +63,17 @@ def fmt(value) -> str:
 
 def now_iso() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def progress(metrics: dict) -> dict:
+    """What a running manifest says of the mission so far, from the step's metrics row."""
+    distances = {k[len("distance_v") :]: v for k, v in metrics.items() if k.startswith("distance_v")}
+    return {
+        "steps": metrics["step"],
+        "mission_time_s": round(float(metrics["time_s"]), 3),
+        "total_distance_m": round(float(metrics["total_distance"]), 3),
+        "distance_m": {v: round(float(d), 3) for v, d in distances.items()},
+    }
 
 
 def file_sha256(path: Path) -> str:
@@ -189,12 +204,17 @@ class RunRecorder:
     """
 
     def __init__(
-        self, directory: Path, resolved_mission: dict, manifest: dict, metric_columns: Sequence[str]
+        self,
+        directory: Path,
+        resolved_mission: dict,
+        manifest: dict,
+        metric_columns: Sequence[str],
+        progress_every_s: float = PROGRESS_EVERY_S,
     ):
         directory = Path(directory)
         if directory.exists() and any(directory.iterdir()):
             raise GuadalError(
-                f"output directory '{directory}' already exists and is not empty; choose another with --output."
+                f"output directory '{directory}' already exists and is not empty; choose another with --run-dir."
             )
         try:
             directory.mkdir(parents=True, exist_ok=True)
@@ -216,12 +236,15 @@ class RunRecorder:
             "started_at": now_iso(),
             "ended_at": None,
             "steps": 0,
+            "progress": None,
             "error": None,
             "metric_columns": list(metric_columns),
             "resumes": [],
         }
         (directory / "mission.resolved.yaml").write_text(yaml.safe_dump(resolved_mission, sort_keys=False))
+        self.progress_every_s = progress_every_s
         self._write_manifest()
+        self._progress_written = time.monotonic()
         self._open_streams(append=False)
 
     @classmethod
@@ -236,6 +259,8 @@ class RunRecorder:
                 f"cannot resume '{directory}': its metrics.csv columns are not those this mission writes "
                 "(the mission or its plugins changed since the run began)."
             )
+        self.progress_every_s = PROGRESS_EVERY_S
+        self._progress_written = time.monotonic()
         self.replay_until = cut_to_last_step(self.directory, metric_columns)
         (self.directory / "fields.csv").unlink(missing_ok=True)  # written anew when the run ends
         self.manifest.setdefault("resumes", []).append(
@@ -269,6 +294,11 @@ class RunRecorder:
         self.trajectory.write(trajectory_rows)
         self.measurements.write(measurement_rows)
         self.metrics.write([[metrics[c] for c in self.metrics.columns]])
+        self.manifest["progress"] = progress(metrics)
+        if time.monotonic() - self._progress_written >= self.progress_every_s:
+            self.manifest["progress"]["updated_at"] = now_iso()
+            self._write_manifest()
+            self._progress_written = time.monotonic()
 
     def write_track(self, step: int, rows: list) -> None:
         if step > self.replay_until:

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ..console import console, fail, print_json, print_mapping
+from ..console import console, err_console, fail, print_json, print_mapping
 from ..errors import GuadalError
 
 # the library (numpy, scipy, networkx) is imported inside each command, so that `guadal --help`
@@ -18,19 +18,38 @@ def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
         mission: Path = typer.Argument(..., help="Mission YAML file."),
+        run_dir: Path | None = typer.Option(
+            None,
+            "--run-dir",
+            help="The run directory itself (must be new or empty); default: a new one in the mission's output.directory.",
+        ),
         output: Path | None = typer.Option(
-            None, "--output", "-o", help="Run directory to create (must be new or empty)."
+            None, "--output", "-o", help="Deprecated name of --run-dir.", hidden=True
         ),
         seed: int | None = typer.Option(None, "--seed", help="Override the mission's seed."),
-        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
+        quiet: bool = typer.Option(
+            False,
+            "--quiet",
+            "-q",
+            help="Print only the run directory (for scripts): no progress bar or summary.",
+        ),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     ) -> None:
         """Run a mission and write its run directory."""
         from ..mission import prepare
         from ..runner import MissionRunner
 
+        if output is not None:
+            if run_dir is not None:
+                raise fail("give the run directory once: --run-dir (--output is its old name).")
+            err_console.print(
+                "[yellow]note:[/] --output is deprecated for 'guadal run'; it is the run directory itself, "
+                "now named --run-dir.",
+                soft_wrap=True,
+            )
+            run_dir = output
         try:
-            runner = MissionRunner(prepare(mission, seed=seed), output=output)
+            runner = MissionRunner(prepare(mission, seed=seed), output=run_dir)
         except GuadalError as exc:
             raise fail(exc)
         run_with_progress(runner, quiet=quiet, as_json=as_json)
@@ -69,6 +88,8 @@ def register(app: typer.Typer) -> None:
 
 def run_with_progress(runner, quiet: bool, as_json: bool) -> None:
     """Run (or resume) a mission with a progress bar, then print its result; Ctrl-C keeps the run."""
+    from ..report.tables import cell_text
+
     mission = runner.mission
     budget = mission.fleet.max_distance * mission.fleet.vehicles
     show = not (quiet or as_json)
@@ -108,6 +129,11 @@ def run_with_progress(runner, quiet: bool, as_json: bool) -> None:
                 "metrics": result.final_metrics,
             }
         )
-    elif not quiet:
-        print_mapping(f"{mission.name}: {result.status} after {result.steps} steps", result.final_metrics)
-        console.print(f"run directory: {result.directory}")
+    elif quiet:
+        console.print(str(result.directory), soft_wrap=True, markup=False)
+    else:
+        print_mapping(
+            f"{mission.name}: {result.status} after {result.steps} steps",
+            {k: cell_text(v) for k, v in result.final_metrics.items()},
+        )
+        console.print(f"run directory: {result.directory}", soft_wrap=True, markup=False)
