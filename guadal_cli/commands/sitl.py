@@ -13,11 +13,16 @@ from ..errors import GuadalError
 
 
 def _latlon(text: str, option: str) -> tuple[float, float]:
+    """LAT,LON, or ArduPilot SITL's LAT,LON,ALT,HEADING (altitude and heading are not modelled)."""
     try:
-        lat, lon = (float(part) for part in text.split(","))
+        numbers = [float(part) for part in text.split(",")]
+        if len(numbers) not in (2, 4):
+            raise ValueError
+        lat, lon = numbers[:2]
     except ValueError:
         raise GuadalError(
-            f"{option} {text!r} must be LAT,LON in decimal degrees, e.g. 37.41795,-5.98345."
+            f"{option} {text!r} must be LAT,LON (or LAT,LON,ALT,HEADING as ArduPilot SITL takes it) in decimal "
+            "degrees, e.g. 37.41795,-5.98345."
         ) from None
     if not (-90 <= lat <= 90 and -180 <= lon <= 180):
         raise GuadalError(f"{option} {text!r} is outside -90..90 latitude / -180..180 longitude.")
@@ -74,6 +79,39 @@ def sitl(
     max_rate: float = typer.Option(
         20.0, "--max-rate", help="Cap on wall-clock messages per second of each telemetry stream."
     ),
+    track_rate: float = typer.Option(
+        1.0,
+        "--track-rate",
+        help="Position fixes (GLOBAL_POSITION_INT) kept per simulated second whatever the speed-up, "
+        "when asked for at least that rate; the --max-rate cap does not thin them below it.",
+    ),
+    instance: int | None = typer.Option(
+        None,
+        "-I",
+        "--instance",
+        help="As ardurover's -I: vehicle 1 listens on 5760+10*I (instead of --base-port).",
+    ),
+    model: str = typer.Option(
+        "motorboat", "--model", help="As ardurover's --model: motorboat, boat or sailboat (a boat), or rover."
+    ),
+    defaults: str | None = typer.Option(
+        None,
+        "--defaults",
+        help="As ardurover's --defaults: comma-separated parameter files (NAME VALUE per line), later ones win.",
+    ),
+    sysid: int = typer.Option(1, "--sysid", help="System id of vehicle 1; vehicle i gets SYSID+i-1."),
+    synthetic_clock: bool = typer.Option(
+        False,
+        "-S",
+        "--synthetic-clock",
+        help="Accepted as ardurover takes it (the emulator's clock always is).",
+    ),
+    wipe: bool = typer.Option(
+        False,
+        "-w",
+        "--wipe",
+        help="Accepted as ardurover takes it (the emulator keeps no parameters on disk).",
+    ),
 ) -> None:
     """Run N emulated MAVLink boats; prints one JSON line when every endpoint is listening."""
     # a launcher may signal us while we start: remember it, and stop quietly once started
@@ -81,6 +119,16 @@ def sitl(
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda signum, _frame: early_stop.append(signum))
     try:
+        if instance is not None:
+            if not 0 <= instance <= (65535 - 5760) // 10 - vehicles:
+                raise GuadalError(f"-I {instance} must be an instance number from 0 (ports 5760+10*I).")
+            base_port = 5760 + 10 * instance
+        from ..sitl.params import MODELS, read_param_files
+
+        if model not in MODELS:
+            raise GuadalError(f"--model {model!r} is not one of {', '.join(MODELS)}.")
+        param_defaults = {"FRAME_CLASS": float(MODELS[model])}
+        param_defaults.update(read_param_files([p for p in (defaults or "").split(",") if p.strip()]))
         fields = dict(
             vehicles=vehicles,
             home=_latlon(home, "--home"),
@@ -98,6 +146,9 @@ def sitl(
             baud=baud,
             seed=seed,
             max_rate=max_rate,
+            sysid=sysid,
+            track_rate=track_rate,
+            param_defaults=param_defaults,
         )
         if gps_noise < 0:
             raise GuadalError(f"--gps-noise must be zero or positive (got {gps_noise}).")

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import GuadalError
 
 REAL32 = 9  # MAV_PARAM_TYPE_REAL32
 INT8 = 2  # MAV_PARAM_TYPE_INT8
@@ -37,3 +41,43 @@ def default_params(max_speed: float) -> dict[str, Param]:
         Param("WP_SPEED", max_speed, REAL32),
     ]
     return {p.name: p for p in table}
+
+
+#: SITL models ``--model`` accepts, and the frame class each one implies
+MODELS = {"motorboat": 2, "boat": 2, "sailboat": 2, "rover": 1}
+
+
+def read_param_files(paths: list[str]) -> dict[str, float]:
+    """``--defaults`` files as ArduPilot reads them: ``NAME VALUE`` (or ``NAME,VALUE``) per line,
+    ``#`` comments; later files override earlier ones. Parameters the emulator does not model are
+    kept too (and ignored), as ArduPilot's own files set hundreds."""
+    values: dict[str, float] = {}
+    for path in paths:
+        try:
+            lines = Path(path).read_text(encoding="utf-8").splitlines()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise GuadalError(f"--defaults: cannot read parameter file '{path}' ({exc}).") from None
+        for number, line in enumerate(lines, 1):
+            text = line.split("#", 1)[0].strip()
+            if not text:
+                continue
+            parts = text.replace(",", " ").split()
+            try:
+                name, value = parts[0], float(parts[1])
+            except (IndexError, ValueError):
+                raise GuadalError(
+                    f"--defaults: '{path}' line {number} must be NAME VALUE, e.g. 'WP_RADIUS 1' (got '{text[:40]}')."
+                ) from None
+            if len(parts) > 2 or not math.isfinite(value):
+                raise GuadalError(
+                    f"--defaults: '{path}' line {number} must be NAME VALUE with a finite number (got '{text[:40]}')."
+                )
+            values[name.upper()] = value
+    return values
+
+
+def apply_defaults(params: dict[str, Param], values: dict[str, float]) -> None:
+    """Set the parameters the emulator models; the others are ArduPilot's business."""
+    for name, value in values.items():
+        if name in params:
+            params[name].value = params[name].coerce(value)

@@ -4,7 +4,10 @@ Simulated time runs ``speedup`` times faster than wall time.  Each telemetry str
 simulated instants (1 Hz by default, like Rover), but no stream is sent more than ``max_rate``
 times per *wall* second: at speed-up 200 a 1 Hz stream would be 200 messages a second per
 message per boat, and ten boats would spend the machine on packing telemetry nobody can read.
-When the cap binds, a stream's simulated interval stretches to ``speedup / max_rate`` seconds.
+When the cap binds, a stream's simulated interval stretches to ``speedup / max_rate`` seconds —
+except the position fixes (``telemetry.TRACK_MESSAGES``), which the cap never thins below twice
+``track_rate`` fixes per simulated second (when asked for that often): a GPS track recorded from
+them at ``track_rate`` has the same density whatever the speed-up.
 """
 
 from __future__ import annotations
@@ -22,9 +25,11 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from ..errors import GuadalError
 from .link import Link, SerialPort, TcpListener, UdpOut
 from .physics import GeoFrame, HullLimits
-from .telemetry import send_once
+from .telemetry import DEFAULT_TRACK_RATE_HZ, TRACK_MESSAGES, TRACK_OVERSAMPLING, send_once
 from .vehicle import EmulatedBoat, VehicleConfig
 
+#: a position stream more than this many simulated seconds behind skips ahead instead of catching up
+TRACK_CATCH_UP_S = 10.0
 #: wall seconds between physics updates of every boat (arrivals are detected on this beat)
 PHYSICS_TICK_S = 0.02
 #: system ids 1..250; the top of the range is where ground stations live (255 by habit)
@@ -49,6 +54,9 @@ class SitlOptions:
     baud: int = 115200
     seed: int = 0
     max_rate: float = 20.0  # wall messages per second per stream, per boat
+    track_rate: float = DEFAULT_TRACK_RATE_HZ  # position fixes per simulated second, whatever the speed-up
+    sysid: int = 1  # system id of vehicle 1; vehicle i gets sysid + i
+    param_defaults: dict[str, float] = field(default_factory=dict)  # ArduPilot parameter values
 
     def vehicle_homes(self) -> list[tuple[float, float]]:
         if self.homes:
@@ -81,6 +89,11 @@ class SitlServer:
     def __init__(self, options: SitlOptions):
         if not 1 <= options.vehicles <= MAX_VEHICLES:
             raise GuadalError(f"--vehicles must be between 1 and {MAX_VEHICLES} (got {options.vehicles}).")
+        if not 1 <= options.sysid <= MAX_VEHICLES - options.vehicles + 1:
+            raise GuadalError(
+                f"--sysid must be between 1 and {MAX_VEHICLES - options.vehicles + 1} for {options.vehicles} vehicles "
+                f"(got {options.sysid})."
+            )
         last = 10 * (options.vehicles - 1)
         if options.base_port and not 0 < options.base_port <= 65535 - last:
             raise GuadalError(
@@ -96,6 +109,10 @@ class SitlServer:
             raise GuadalError(f"--max-speed must be positive (got {options.max_speed}).")
         if options.max_rate <= 0:
             raise GuadalError(f"--max-rate must be positive (got {options.max_rate}).")
+        if not options.track_rate > 0:
+            raise GuadalError(
+                f"--track-rate must be positive fixes per simulated second (got {options.track_rate})."
+            )
         if options.serial and len(options.serial) not in (1, options.vehicles):
             raise GuadalError(
                 f"--serial gives {len(options.serial)} devices for {options.vehicles} vehicles; give one, or one per vehicle."
@@ -135,11 +152,14 @@ class SitlServer:
         limits = HullLimits(max_speed=opts.max_speed)
         try:
             for i, home in enumerate(homes):
-                sysid = i + 1
+                sysid = opts.sysid + i
                 link = Link(sysid, self.selector)
                 self.links.append(link)
                 boat = EmulatedBoat(
-                    VehicleConfig(sysid, home, limits, opts.gps_noise_m, opts.current_en, opts.seed), link.mav
+                    VehicleConfig(
+                        sysid, home, limits, opts.gps_noise_m, opts.current_en, opts.seed, opts.param_defaults
+                    ),
+                    link.mav,
                 )
                 link.deliver = self._deliverer(boat)
                 port = 0 if opts.base_port == 0 else opts.base_port + 10 * i
@@ -239,8 +259,13 @@ class SitlServer:
     def _send_due(self, now: float) -> None:
         sim_now = self.clock.sim(now)
         min_gap = 1.0 / self.options.max_rate
+        # position fixes: never thinned below TRACK_OVERSAMPLING x track_rate per simulated second
+        track_floor = min(
+            self.options.speedup / self.options.max_rate,
+            1.0 / (TRACK_OVERSAMPLING * self.options.track_rate),
+        )
         while self._heap and self._heap[0][0] <= now:
-            _, _, index, msg_id, gen = heapq.heappop(self._heap)
+            wall, _, index, msg_id, gen = heapq.heappop(self._heap)
             key = (index, msg_id)
             if self._generation.get(key) != gen:
                 continue
@@ -249,8 +274,16 @@ class SitlServer:
             if interval is None:
                 continue
             if self.links[index].has_peers:
-                boat.advance(sim_now)
+                # entries leave the heap in time order, so a loop that woke late still reports each
+                # message at the simulated instant it was due (the boat integrates up to it first)
+                boat.advance(min(sim_now, self.clock.sim(wall)))
                 self._send_safely(boat, msg_id)
+            if msg_id in TRACK_MESSAGES:
+                due = self._next_sim[key] + max(interval, track_floor)
+                if due <= sim_now - TRACK_CATCH_UP_S:  # hopelessly behind (a stopped process): skip ahead
+                    due = sim_now
+                self._schedule(index, msg_id, due, now)
+                continue
             due = self._next_sim[key] + interval
             if due <= sim_now:  # fell behind (the wall-rate cap, or a slow loop): resynchronise
                 due = sim_now + interval
@@ -274,7 +307,11 @@ class SitlServer:
         while not self._stopping:
             now = time.monotonic()
             wake = next_tick if not self._heap else min(next_tick, self._heap[0][0])
-            for key, mask in self.selector.select(max(0.0, wake - now)):
+            events = self.selector.select(max(0.0, wake - now))
+            # telemetry first: what fell due while this process waited is stamped at its own instant
+            # before incoming messages and the physics tick bring the boats up to now
+            self._send_due(time.monotonic())
+            for key, mask in events:
                 key.data(mask)
                 if self._stopping:
                     break

@@ -1,7 +1,9 @@
 """What a boat reports and how often: the message builders and the per-vehicle rate table.
 
 Rates are in simulated time, like SITL's: a 1 Hz stream at speed-up 50 is 50 messages per wall
-second (the runner caps that, see ``server.py``).  Groups follow ArduPilot's stream groups so a
+second (the runner caps that, see ``server.py``, except for the position fixes of
+``TRACK_MESSAGES``, which keep at least the track rate in simulated time so that a GPS track is
+as dense at speed-up 200 as at 1).  Groups follow ArduPilot's stream groups so a
 REQUEST_DATA_STREAM for EXTENDED_STATUS changes the same messages it would on a real autopilot.
 """
 
@@ -48,6 +50,13 @@ STREAM_GROUPS = {
     mavlink.MAV_DATA_STREAM_RAW_CONTROLLER: (),
 }
 DEFAULT_INTERVAL_S = 1.0
+#: the position fixes a GPS track is made of: the wall-rate cap never thins them below the track rate
+TRACK_MESSAGES = (GLOBAL_POSITION_INT,)
+#: fixes per simulated second a recorder can count on whatever the speed-up (``--track-rate``)
+DEFAULT_TRACK_RATE_HZ = 1.0
+#: position fixes may be sent this many times faster than the track rate (when asked), so that a
+#: recorder sampling at the track rate always finds a fix younger than one interval
+TRACK_OVERSAMPLING = 2.0
 #: streamed from boot at 1 Hz (Rover's default rate for every group, and the heartbeat)
 STREAMED_BY_DEFAULT = (HEARTBEAT,) + tuple(sorted({m for ids in STREAM_GROUPS.values() for m in ids}))
 #: sent on request (REQUEST_MESSAGE) or when given an interval, never by default

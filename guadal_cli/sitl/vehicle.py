@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from .modes import AUTO, ENTERABLE_MODES, GUIDED, LOITER, MANUAL, RTL, SMART_RTL, UNARMABLE_MODES
-from .params import Param, default_params
+from .params import Param, apply_defaults, default_params
 from .physics import MAX_SUBSTEP_S, GeoFrame, Hull, HullLimits
 from .telemetry import StreamTable, send_once, stream_group
 
@@ -47,6 +47,7 @@ class VehicleConfig:
     gps_noise_m: float = 0.0
     current_en: tuple[float, float] = (0.0, 0.0)
     seed: int = 0
+    param_defaults: dict[str, float] = field(default_factory=dict)  # from --defaults and --model
 
 
 @dataclass
@@ -72,6 +73,7 @@ class EmulatedBoat:
         self.frame = GeoFrame(*config.home)
         self.hull = Hull(config.limits, config.current_en)
         self.params: dict[str, Param] = default_params(config.limits.max_speed)
+        apply_defaults(self.params, config.param_defaults)
         self.rng = random.Random(config.seed * 1_000_003 + config.sysid)
         self.time_s = 0.0
         self.mode = MANUAL  # ArduPilot Rover's INITIAL_MODE default
