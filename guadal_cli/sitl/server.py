@@ -23,9 +23,10 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from ..errors import GuadalError
+from ..fleet.track import DEFAULT_TRACK_RATE_HZ
 from .link import Link, SerialPort, TcpListener, UdpOut
 from .physics import GeoFrame, HullLimits
-from .telemetry import DEFAULT_TRACK_RATE_HZ, TRACK_MESSAGES, TRACK_OVERSAMPLING, send_once
+from .telemetry import TRACK_MESSAGES, TRACK_OVERSAMPLING, send_once
 from .vehicle import EmulatedBoat, VehicleConfig
 
 #: a position stream more than this many simulated seconds behind skips ahead instead of catching up

@@ -52,8 +52,6 @@ STREAM_GROUPS = {
 DEFAULT_INTERVAL_S = 1.0
 #: the position fixes a GPS track is made of: the wall-rate cap never thins them below the track rate
 TRACK_MESSAGES = (GLOBAL_POSITION_INT,)
-#: fixes per simulated second a recorder can count on whatever the speed-up (``--track-rate``)
-DEFAULT_TRACK_RATE_HZ = 1.0
 #: position fixes may be sent this many times faster than the track rate (when asked), so that a
 #: recorder sampling at the track rate always finds a fix younger than one interval
 TRACK_OVERSAMPLING = 2.0
