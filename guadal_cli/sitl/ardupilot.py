@@ -147,3 +147,85 @@ def free_instances(count: int, first: int = 0) -> list[int]:
         f"no {count} consecutive SITL instances with free ports between {first} and {MAX_INSTANCE} "
         f"(instance i uses TCP {SERIAL0_PORT}+10i and the ports after it); stop other simulators."
     )
+
+
+#: MAVProxy, where a user wants a console or a ground station: serial 1 of instance i (5762+10i)
+#: in, UDP 14550+10i out, as sim_vehicle.py forwards it
+MAVPROXY_IN_PORT = 5762
+MAVPROXY_OUT_PORT = 14550
+
+
+@dataclass
+class RoverFleet:
+    """Everything needed to start one ``ardurover`` per vehicle: written files, commands, folders."""
+
+    instances: list[RoverInstance]
+    workdirs: list[Path]
+    defaults_file: Path
+
+    def mavproxy_command(self, i: int, executable: str = "mavproxy.py") -> list[str]:
+        """MAVProxy on serial 1 of vehicle ``i``, forwarding to UDP 14550+10i (QGroundControl's port)."""
+        shift = 10 * self.instances[i].instance
+        return [
+            executable,
+            "--master",
+            f"tcp:127.0.0.1:{MAVPROXY_IN_PORT + shift}",
+            "--out",
+            f"udp:127.0.0.1:{MAVPROXY_OUT_PORT + shift}",
+            "--daemon",
+        ]
+
+
+def plan_rover_fleet(
+    *,
+    binary: str | Path,
+    homes: Sequence[tuple[float, float]],
+    speedup: float,
+    speed: float,
+    state_dir: Path,
+    wp_radius: float = 1.0,
+    extra_defaults: Sequence[str | Path] = (),
+    model: str = BOAT_MODEL,
+    first_instance: int | None = None,
+) -> RoverFleet:
+    """Write guadal's parameter file and one working folder per vehicle; return the commands.
+
+    ``extra_defaults`` (e.g. ArduPilot's ``Tools/autotest/default_params/rover.parm`` and
+    ``motorboat.parm``, which ``sim_vehicle.py`` passes) come first; guadal's file comes last and
+    wins. With ``first_instance`` None the instances are the first ones whose ports are free.
+    """
+    binary = str(Path(binary).expanduser())
+    if not Path(binary).is_file():
+        raise GuadalError(
+            f"the ArduPilot SITL binary '{binary}' does not exist; build it in an ArduPilot checkout with "
+            "'./waf configure --board sitl && ./waf rover' and give build/sitl/bin/ardurover."
+        )
+    missing = [str(p) for p in extra_defaults if not Path(p).expanduser().is_file()]
+    if missing:
+        raise GuadalError(f"the ArduPilot parameter file '{missing[0]}' does not exist.")
+    state_dir = Path(state_dir)
+    state_dir.mkdir(parents=True, exist_ok=True)
+    defaults_file = state_dir / "guadal-rover.parm"
+    defaults_file.write_text(guided_defaults(speed, wp_radius))
+    numbers = (
+        free_instances(len(homes))
+        if first_instance is None
+        else list(range(first_instance, first_instance + len(homes)))
+    )
+    instances, workdirs = [], []
+    for v, (home, number) in enumerate(zip(homes, numbers)):
+        workdir = state_dir / f"ardupilot-{v}"  # eeprom.bin and logs of this instance
+        workdir.mkdir(exist_ok=True)
+        workdirs.append(workdir)
+        instances.append(
+            RoverInstance(
+                binary=binary,
+                instance=number,
+                home=home,
+                speedup=speedup,
+                defaults=[*(Path(p).expanduser().resolve() for p in extra_defaults), defaults_file.resolve()],
+                sysid=v + 1,
+                model=model,
+            )
+        )
+    return RoverFleet(instances=instances, workdirs=workdirs, defaults_file=defaults_file)

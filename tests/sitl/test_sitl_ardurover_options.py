@@ -8,7 +8,9 @@ import subprocess
 import pytest
 from sitl_support import SITL_MODULE, command_long, connect, start_sitl, stop_sitl
 
-from guadal_cli.sitl.ardupilot import RoverInstance, free_instances
+from guadal_cli.errors import GuadalError
+from guadal_cli.sitl.ardupilot import RoverInstance, free_instances, instance_free, plan_rover_fleet
+from guadal_cli.sitl.params import read_param_files
 
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 GLOBAL_POSITION_INT, ATTITUDE = 33, 30
@@ -116,3 +118,41 @@ def test_position_fixes_keep_the_track_rate_in_simulated_time_whatever_the_speed
     fixes = stamps["GLOBAL_POSITION_INT"][4:]
     assert (len(fixes) - 1) / (fixes[-1] - fixes[0]) >= float(track_rate)
     assert gaps["GLOBAL_POSITION_INT"] <= 1.0 / float(track_rate)
+
+
+def test_rover_fleet_plan_writes_guided_defaults_and_one_folder_per_instance(tmp_path):
+    binary = tmp_path / "ardurover"
+    binary.write_text("#!/bin/sh\n")
+    extra = tmp_path / "motorboat.parm"
+    extra.write_text("FRAME_CLASS 2\n")
+    homes = [(37.41795, -5.98345), (37.4180, -5.9834)]
+    plan = plan_rover_fleet(
+        binary=binary,
+        homes=homes,
+        speedup=20,
+        speed=0.7,
+        state_dir=tmp_path / "state",
+        extra_defaults=[extra],
+    )
+    params = read_param_files([str(plan.defaults_file)])
+    assert params["WP_SPEED"] == params["CRUISE_SPEED"] == 0.7 and params["WP_RADIUS"] == 1.0
+    assert params["FS_ACTION"] == 2 and params["FS_GCS_ENABLE"] == 1 and params["FRAME_CLASS"] == 2
+    first, second = plan.instances
+    assert second.instance == first.instance + 1 and first.sysid == 1 and second.sysid == 2
+    assert all(instance_free(i.instance) for i in plan.instances)
+    assert [p.name for p in plan.workdirs] == ["ardupilot-0", "ardupilot-1"] and all(
+        p.is_dir() for p in plan.workdirs
+    )
+    cmd = second.command()
+    assert cmd[cmd.index("--defaults") + 1] == f"{extra.resolve()},{plan.defaults_file.resolve()}"
+    assert f"-I{second.instance}" in cmd and cmd[cmd.index("--home") + 1].startswith(
+        "37.41800000,-5.98340000,"
+    )
+    assert plan.mavproxy_command(1)[1:5] == [
+        "--master",
+        f"tcp:127.0.0.1:{5762 + 10 * second.instance}",
+        "--out",
+        f"udp:127.0.0.1:{14550 + 10 * second.instance}",
+    ]
+    with pytest.raises(GuadalError, match="ArduPilot SITL binary .* does not exist"):
+        plan_rover_fleet(binary=tmp_path / "nope", homes=homes, speedup=1, speed=1, state_dir=tmp_path)
