@@ -35,6 +35,7 @@ from .channel.broker import child_options, start_broker
 from .channel.client import Channel, Endpoint
 from .channel.credentials import FleetSecrets, private_dir, vehicle_user
 from .errors import GuadalError
+from .fleet.track import DEFAULT_TRACK_RATE_HZ
 
 STATE_FILE = "stack.json"
 
@@ -139,6 +140,19 @@ def _emulator(*args: str) -> list[str]:
     return [sys.executable, "-m", "guadal_cli.sitl", *args]
 
 
+@dataclass
+class Autopilot:
+    """Which program flies each boat: guadal's emulator (one process) or ArduPilot's SITL
+    (``ardurover``, one process per boat, started as ``sim_vehicle.py`` would)."""
+
+    kind: str = "guadal"  # guadal | ardupilot (AUTOPILOTS below)
+    binary: str | None = None  # ardurover, for ardupilot
+    defaults: Sequence[str] = ()  # ArduPilot parameter files read before guadal's own
+    mavproxy: bool = False  # ardupilot: MAVProxy per boat, forwarding to UDP 14550+10i
+    speed: float = 0.5  # the fleet's nominal speed: ArduPilot's WP_SPEED and CRUISE_SPEED
+    track_rate: float = DEFAULT_TRACK_RATE_HZ  # GPS fixes per second of the autopilot's clock
+
+
 class Stack:
     """A running (or recorded) sitl stack."""
 
@@ -212,6 +226,7 @@ class Stack:
         state_dir: Path | None = None,
         detach: bool = False,
         secure: bool = True,
+        autopilot: Autopilot | None = None,
     ) -> Stack:
         """Start broker, emulator and bridges; return when every bridge is online.
 
@@ -230,6 +245,7 @@ class Stack:
             "speedup": speedup,
             "homes": [list(h) for h in homes],
             "secure": secure,
+            "autopilot": (autopilot or Autopilot()).kind,
         }
         stack = cls(state_dir, info, [], own_dir=own)
         try:
@@ -246,13 +262,14 @@ class Stack:
                 list(bridge_args),
                 timeout,
                 detach,
+                autopilot or Autopilot(),
             )
         except BaseException:
             stack.down()
             raise
         return stack
 
-    def _spawn(self, name: str, cmd: list[str], detach: bool) -> StackProcess:
+    def _spawn(self, name: str, cmd: list[str], detach: bool, cwd: Path | None = None) -> StackProcess:
         log = self.state_dir / "logs" / f"{name}.log"
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         existing = next((p for p in self.processes if p.name == name), None)
@@ -263,6 +280,7 @@ class Stack:
                 stdout=out,
                 stderr=subprocess.STDOUT,
                 env=env,
+                cwd=cwd,
                 **child_options(detach),
             )
         proc = StackProcess(name, popen.pid, str(log), _start_ticks(popen.pid), list(cmd), popen)
@@ -294,13 +312,19 @@ class Stack:
         bridge_args,
         timeout,
         detach,
+        autopilot: Autopilot,
     ) -> None:
         deadline = time.monotonic() + timeout
         if self.secure:
             FleetSecrets.generate(self.state_dir / "secrets", fleet, vehicles)
         self.start_broker(broker_kind, broker_port, min(timeout, 15.0), detach)
         self.info["planner"] = self.planner_backend()
-        endpoints = self.start_emulator(homes, speedup, emulator_args, deadline, detach)
+        if autopilot.kind not in AUTOPILOTS:
+            raise GuadalError(f"autopilot must be one of {', '.join(AUTOPILOTS)} (got '{autopilot.kind}').")
+        endpoints = AUTOPILOTS[autopilot.kind](
+            self, homes, speedup, autopilot, emulator_args, deadline, detach
+        )
+        bridge_args = ["--track-rate", f"{autopilot.track_rate:g}", *bridge_args]
         watcher = StatusWatcher(
             self.endpoint("watcher"),
             fleet,
@@ -336,7 +360,9 @@ class Stack:
             "url": broker.url,
         }
 
-    def start_emulator(self, homes, speedup, emulator_args, deadline: float, detach: bool) -> list[str]:
+    def start_emulator(
+        self, homes, speedup, autopilot: Autopilot, emulator_args, deadline: float, detach: bool
+    ) -> list[str]:
         """The MAVLink boat emulator; returns one pymavlink connection string per boat."""
         fmt = lambda h: f"{h[0]:.8f},{h[1]:.8f}"  # noqa: E731
         emulator = self._spawn(
@@ -352,6 +378,8 @@ class Stack:
                 f"{speedup:g}",
                 "--base-port",
                 "0",
+                "--track-rate",
+                f"{autopilot.track_rate:g}",
                 *emulator_args,
             ),
             detach,
@@ -359,6 +387,40 @@ class Stack:
         ready = _wait_ready_line(emulator, deadline)
         endpoints = mavlink_endpoints(ready, len(homes))
         self.info["emulator"] = {"ready": ready, "mavlink": endpoints}
+        return endpoints
+
+    def start_ardupilot(
+        self, homes, speedup, autopilot: Autopilot, emulator_args, deadline: float, detach: bool
+    ) -> list[str]:
+        """One ``ardurover`` per boat, each in its own folder, as ``sim_vehicle.py`` starts them;
+        returns their serial-0 TCP endpoints once each listens there (SITL waits for its client)."""
+        from .sitl.ardupilot import plan_rover_fleet
+
+        if not autopilot.binary:
+            raise GuadalError("autopilot ardupilot needs the path of ArduPilot's SITL binary (ardurover).")
+        plan = plan_rover_fleet(
+            binary=autopilot.binary,
+            homes=homes,
+            speedup=speedup,
+            speed=autopilot.speed,
+            state_dir=self.state_dir,
+            extra_defaults=list(autopilot.defaults),
+        )
+        rovers = []
+        for i, rover in enumerate(plan.instances):
+            cmd = [*rover.command(), *emulator_args]
+            rovers.append(self._spawn(f"ardupilot-{i}", cmd, detach, cwd=plan.workdirs[i]))
+        for rover, proc in zip(plan.instances, rovers):
+            _wait_listening(proc, rover.port, deadline)
+        if autopilot.mavproxy:
+            for i in range(len(plan.instances)):
+                self._spawn(f"mavproxy-{i}", plan.mavproxy_command(i), detach)
+        endpoints = [rover.mavlink_url for rover in plan.instances]
+        self.info["ardupilot"] = {
+            "instances": [rover.instance for rover in plan.instances],
+            "defaults": str(plan.defaults_file),
+            "mavlink": endpoints,
+        }
         return endpoints
 
     def start_bridge(
@@ -497,6 +559,38 @@ def mavlink_endpoints(ready: dict, vehicles: int) -> list[str]:
     return out
 
 
+#: how the stack starts each kind of autopilot: Stack method returning one MAVLink endpoint per boat
+AUTOPILOTS = {"guadal": Stack.start_emulator, "ardupilot": Stack.start_ardupilot}
+
+
+def _listening(port: int) -> bool:
+    """Is something listening on TCP ``port`` here? Read from /proc, without connecting: SITL
+    takes its first client on serial 0 as the one it serves."""
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            rows = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for row in rows:
+            fields = row.split()
+            if len(fields) > 3 and fields[3] == "0A" and int(fields[1].rsplit(":", 1)[1], 16) == port:
+                return True
+    return False
+
+
+def _wait_listening(proc: StackProcess, port: int, deadline: float) -> None:
+    while not _listening(port):
+        if not proc.alive():
+            raise GuadalError(
+                f"{proc.name} exited before it listened on port {port}: {proc.tail() or 'no output'}."
+            )
+        if time.monotonic() > deadline:
+            raise GuadalError(
+                f"{proc.name} did not listen on port {port} in time: {proc.tail() or 'no output'}."
+            )
+        time.sleep(0.05)
+
+
 class StatusWatcher:
     """Subscribes to every vehicle's retained status, to know when all bridges are online."""
 
@@ -565,9 +659,14 @@ def stack_up(
     broker_kind: str = "auto",
     failsafe_timeout: float = 30.0,
     timeout: float = 60.0,
+    autopilot: Autopilot | None = None,
+    emulator_args: Sequence[str] = (),
+    bridge_args: Sequence[str] = (),
 ) -> Stack:
     """``guadal stack up``: homes on distinct water nodes near the lake's centre (where
-    ``initial_positions: auto`` starts a mission), processes detached, a state file written."""
+    ``initial_positions: auto`` starts a mission), processes detached, a state file written.
+    ``emulator_args`` and ``bridge_args`` go to every autopilot and bridge, as a mission's
+    ``backend: {launch: true}`` passes them."""
     from .graph import NavGraph
     from .maps.format import load_map
     from .mission import auto_positions
@@ -589,9 +688,12 @@ def stack_up(
         broker_kind=broker_kind,
         broker_port=broker_port,
         failsafe_timeout=failsafe_timeout,
+        emulator_args=emulator_args,
+        bridge_args=bridge_args,
         timeout=timeout,
         state_dir=state_dir,
         detach=True,
+        autopilot=autopilot,
     )
     try:
         stack.save()

@@ -60,6 +60,11 @@ def register(app: typer.Typer) -> None:
         telemetry_hz: float | None = typer.Option(
             None, "--telemetry-hz", help="Telemetry messages per second (default: 2)."
         ),
+        track_rate: float | None = typer.Option(
+            None,
+            "--track-rate",
+            help="GPS fixes published per second of the autopilot's clock, simulated time in SITL (default: 1).",
+        ),
         refine: int | None = typer.Option(
             None, "--refine", help="High-resolution factor of the path grid (default: 3)."
         ),
@@ -97,6 +102,7 @@ def register(app: typer.Typer) -> None:
             "failsafe_timeout": failsafe_timeout,
             "arrival_radius": arrival_radius,
             "telemetry_hz": telemetry_hz,
+            "track_rate": track_rate,
             "refine": refine,
             "waypoint_command": waypoint_command,
             "hold_on_exit": hold_on_exit,

@@ -35,14 +35,62 @@ def register(app: typer.Typer) -> None:
             30.0, "--failsafe-timeout", min=0.1, help="Bridges' comms-loss failsafe, seconds."
         ),
         state_dir: Path | None = typer.Option(None, "--state-dir", help=_STATE_HELP),
+        autopilot: str = typer.Option(
+            "guadal",
+            "--autopilot",
+            help="guadal (the MAVLink emulator) or ardupilot (ArduPilot's SITL, one ardurover per boat).",
+        ),
+        binary: Path | None = typer.Option(
+            None,
+            "--binary",
+            help="--autopilot ardupilot: ArduPilot's SITL binary (build/sitl/bin/ardurover).",
+        ),
+        defaults: list[Path] | None = typer.Option(
+            None,
+            "--defaults",
+            help="--autopilot ardupilot: ArduPilot parameter file read before guadal's (repeat).",
+        ),
+        mavproxy: bool = typer.Option(
+            False, "--mavproxy", help="--autopilot ardupilot: MAVProxy per boat, forwarding to UDP 14550+10i."
+        ),
+        speed: float = typer.Option(
+            0.5,
+            "--speed",
+            min=0.01,
+            help="Boats' cruise speed, m/s (ArduPilot's WP_SPEED; the emulator's hull).",
+        ),
+        track_rate: float = typer.Option(
+            1.0, "--track-rate", min=0.01, max=50, help="GPS fixes per second of the autopilots' clock."
+        ),
+        sensor: str | None = typer.Option(
+            None, "--sensor", help="Every bridge's sensor: synthetic:CSV, replay:CSV or serial:DEVICE."
+        ),
+        emulator_arg: list[str] | None = typer.Option(
+            None,
+            "--emulator-arg",
+            help="Extra option for the autopilot program (repeat), as backend.emulator_args.",
+        ),
+        bridge_arg: list[str] | None = typer.Option(
+            None, "--bridge-arg", help="Extra option for every bridge (repeat), as backend.bridge_args."
+        ),
         as_json: bool = typer.Option(False, "--json", help="Print the stack as JSON."),
     ) -> None:
         """Start the stack in the background and print the broker URL once every bridge is online."""
-        from ..stack import stack_up
+        from ..stack import AUTOPILOTS, Autopilot, stack_up
 
         try:
             if not map_path.is_file():
                 raise GuadalError(f"--map: map file '{map_path}' does not exist.")
+            if autopilot not in AUTOPILOTS:
+                raise GuadalError(f"--autopilot must be one of {', '.join(AUTOPILOTS)} (got '{autopilot}').")
+            if autopilot == "ardupilot" and binary is None:
+                raise GuadalError(
+                    "--autopilot ardupilot needs --binary, the path of ArduPilot's SITL ardurover."
+                )
+            bridge_args = list(bridge_arg or []) + (["--sensor", sensor] if sensor else [])
+            emulator_args = list(emulator_arg or [])
+            if autopilot == "guadal":
+                emulator_args = ["--max-speed", f"{speed:g}", *emulator_args]
             stack = stack_up(
                 map_path=map_path,
                 vehicles=vehicles,
@@ -52,6 +100,16 @@ def register(app: typer.Typer) -> None:
                 fleet=fleet,
                 broker_kind=broker,
                 failsafe_timeout=failsafe_timeout,
+                autopilot=Autopilot(
+                    kind=autopilot,
+                    binary=str(binary) if binary else None,
+                    defaults=[str(p) for p in defaults or []],
+                    mavproxy=mavproxy,
+                    speed=speed,
+                    track_rate=track_rate,
+                ),
+                emulator_args=emulator_args,
+                bridge_args=bridge_args,
             )
         except GuadalError as exc:
             raise fail(exc)

@@ -28,6 +28,7 @@ from ..channel import protocol as messages
 from ..channel.client import Channel
 from ..channel.session import Follower
 from ..errors import GuadalError
+from ..fleet.track import TrackSampler
 from ..maps.format import haversine_m
 from .config import BridgeConfig
 from .lowlevel import LowLevelPlanner, Waypoint
@@ -138,6 +139,8 @@ class Bridge:
         self._sensor_jobs: queue.Queue = queue.Queue()
         self.link_lost = False
         self.wp_radius: float | None = None  # the autopilot's WP_RADIUS, once it has told us
+        self._published_t: float | None = None  # autopilot clock of the last telemetry sent
+        link.track_sampler = TrackSampler(config.track_rate)  # the GPS track, in the autopilot's time
         self._wp_radius_asked = -1e9
         self.topic_command = messages.topic(self.fleet, self.vid, "command")
         self.topic_planner = messages.topic(self.fleet, None, "status")
@@ -512,6 +515,8 @@ class Bridge:
                     self.goal.sent_at = 0.0  # resend at the next tick (GUIDED may not be on yet)
         elif kind == "MISSION_ITEM_REACHED":
             self._on_reached_message()
+        elif kind == "GLOBAL_POSITION_INT":  # a fix the track sampler picked
+            self.publish_telemetry(fix=msg)
         elif kind == "PARAM_VALUE":
             self._on_param(msg)
         elif kind == "STATUSTEXT":
@@ -646,10 +651,17 @@ class Bridge:
         self._check_arrival(s)
 
     # --- main loop -------------------------------------------------------------------------------------
-    def publish_telemetry(self) -> None:
+    def publish_telemetry(self, fix=None) -> None:
+        """The vehicle's state; ``fix``: a GLOBAL_POSITION_INT the track sampler picked, sent as is.
+
+        Telemetry never goes back in the autopilot's time: a picked fix that a newer periodic
+        message overtook is skipped (the newer one stands for its period)."""
         s = self.link.snapshot()
-        if s.lat is None:
+        if fix is not None:
+            s.lat, s.lon, s.time_boot_s = fix.lat / 1e7, fix.lon / 1e7, fix.time_boot_ms / 1000.0
+        if s.lat is None or (self._published_t is not None and s.time_boot_s < self._published_t):
             return
+        self._published_t = s.time_boot_s
         payload = self._encode(
             "telemetry",
             "telemetry",
@@ -666,8 +678,9 @@ class Bridge:
         self._publish("telemetry", payload, qos=0)
 
     def request_streams(self) -> None:
-        """Ask for the messages the bridge needs, faster than Rover's 1 Hz default."""
-        position_hz = max(5.0, 2 * self.config.telemetry_hz)
+        """Ask for the messages the bridge needs, faster than Rover's 1 Hz default (position at
+        twice the track rate at least, so that every period of the track has a fix)."""
+        position_hz = max(5.0, 2 * self.config.telemetry_hz, 2 * self.config.track_rate)
         for msg_id, hz in (
             (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, position_hz),
             (mavlink.MAVLINK_MSG_ID_VFR_HUD, self.config.telemetry_hz),

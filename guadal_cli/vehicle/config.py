@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from ..channel.client import Endpoint
 from ..channel.credentials import fleet_key, read_secret
 from ..errors import GuadalError, explain_validation_error
+from ..fleet.track import DEFAULT_TRACK_RATE_HZ
 
 
 class BridgeConfig(BaseModel):
@@ -47,6 +48,12 @@ class BridgeConfig(BaseModel):
         default=2.0, gt=0, description="Metres from the target that count as reached."
     )
     telemetry_hz: float = Field(default=2.0, gt=0, le=50)
+    track_rate: float = Field(
+        default=DEFAULT_TRACK_RATE_HZ,
+        gt=0,
+        le=50,
+        description="GPS fixes published per second of the autopilot's own clock (simulated time in SITL).",
+    )
     refine: int = Field(
         default=3, ge=1, le=10, description="High-resolution factor of the path-planning grid."
     )

@@ -22,6 +22,7 @@ os.environ["MAVLINK20"] = "1"  # before pymavlink is imported: ArduPilot speaks 
 from pymavlink import mavutil  # noqa: E402
 
 from ..errors import GuadalError  # noqa: E402
+from ..fleet.track import TrackSampler  # noqa: E402
 
 log = logging.getLogger("guadal.bridge")
 mavlink = mavutil.mavlink
@@ -131,6 +132,8 @@ class AutopilotLink:
         self._thread: threading.Thread | None = None
         self._start = time.monotonic()
         self.sent_commands: set[int] = set()  # command ids this bridge has sent (their acks are ours)
+        # position fixes it picks become events (one per period of the autopilot's clock): the GPS track
+        self.track_sampler: TrackSampler | None = None
 
     # --- connection ----------------------------------------------------------------------
     @staticmethod
@@ -199,6 +202,12 @@ class AutopilotLink:
                 continue  # behind a router, the answers to a ground station's commands pass by too
             self._update(msg)
             if kind in EVENT_TYPES:
+                self.on_event(msg)
+            elif (
+                kind == "GLOBAL_POSITION_INT"
+                and self.track_sampler is not None
+                and self.track_sampler.take(msg.time_boot_ms / 1000.0)
+            ):
                 self.on_event(msg)
 
     def _addressed_to_us(self, msg) -> bool:

@@ -25,7 +25,7 @@ class SitlBackend:
         cfg = self.config
         if not cfg.launch:
             return _fleet(cfg, graph, fleet_config, sensor)
-        from ...stack import Stack
+        from ...stack import Autopilot, Stack
 
         if mission is None or getattr(graph.map, "source", None) is None:
             raise GuadalError("backend.launch needs the mission's map file to start the bridges.")
@@ -41,6 +41,14 @@ class SitlBackend:
             emulator_args=cfg.emulator_args,
             bridge_args=cfg.bridge_args,
             timeout=cfg.stack_timeout,
+            autopilot=Autopilot(
+                kind=cfg.autopilot,
+                binary=cfg.binary,
+                defaults=cfg.defaults,
+                mavproxy=cfg.mavproxy,
+                speed=fleet_config.speed,
+                track_rate=cfg.track_rate,
+            ),
         )
         try:
             # the stack's own generated planner user and fleet key: nothing secret leaves it

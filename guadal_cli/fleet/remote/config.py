@@ -9,10 +9,11 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, SecretStr
+from pydantic import BaseModel, ConfigDict, Field, SecretStr, model_validator
 
 from ...channel.client import Endpoint
 from ...channel.credentials import fleet_key, read_secret
+from ..track import DEFAULT_TRACK_RATE_HZ
 
 
 class RemoteConfig(BaseModel):
@@ -55,6 +56,13 @@ class RemoteConfig(BaseModel):
     reset_timeout: float = Field(
         default=300.0, gt=0, description="Seconds for the vehicles to reach their start nodes."
     )
+    track_rate: float = Field(
+        default=DEFAULT_TRACK_RATE_HZ,
+        gt=0,
+        le=50,
+        description="GPS fixes recorded per second of the vehicle's own clock (simulated time at sitl, "
+        "whatever the speed-up); stated in the run manifest.",
+    )
     hop_timeout: float = Field(default=60.0, gt=0, description="Seconds for one hop (one graph edge).")
     measure_timeout: float = Field(default=30.0, gt=0, description="Seconds for a measurement to come back.")
     offline_grace: float = Field(
@@ -94,8 +102,26 @@ class SitlConfig(RemoteConfig):
     failsafe_timeout: float = Field(
         default=30.0, gt=0, description="Bridges' comms-loss failsafe when launching, seconds."
     )
+    autopilot: Literal["guadal", "ardupilot"] = Field(
+        default="guadal",
+        description="What flies each boat when launching: guadal's MAVLink emulator, or ArduPilot's own SITL "
+        "(ardurover, started per boat as sim_vehicle.py would; see docs/ardupilot.md).",
+    )
+    binary: str | None = Field(
+        default=None,
+        description="autopilot ardupilot: path of ArduPilot's SITL binary (build/sitl/bin/ardurover).",
+    )
+    defaults: list[str] = Field(
+        default_factory=list,
+        description="autopilot ardupilot: ArduPilot parameter files read before guadal's own (e.g. rover.parm, motorboat.parm).",
+    )
+    mavproxy: bool = Field(
+        default=False,
+        description="autopilot ardupilot: also start MAVProxy per boat, forwarding to UDP 14550+10i for a ground station.",
+    )
     emulator_args: list[str] = Field(
-        default_factory=list, description="Extra 'guadal sitl' options when launching."
+        default_factory=list,
+        description="Extra options for the autopilot program ('guadal sitl' or ardurover) when launching.",
     )
     bridge_args: list[str] = Field(
         default_factory=list, description="Extra 'guadal bridge' options when launching."
@@ -103,6 +129,14 @@ class SitlConfig(RemoteConfig):
     stack_timeout: float = Field(
         default=60.0, gt=0, description="Seconds for a launched stack to become ready."
     )
+
+    @model_validator(mode="after")
+    def _ardupilot_needs_its_binary(self):
+        if self.launch and self.autopilot == "ardupilot" and not self.binary:
+            raise ValueError(
+                "autopilot ardupilot needs binary: the path of ArduPilot's SITL rover (build/sitl/bin/ardurover)"
+            )
+        return self
 
 
 class RealConfig(RemoteConfig):

@@ -145,6 +145,7 @@ class RemoteFleet(Fleet):
             for v, node in zip(self.vehicles, initial_nodes):
                 v.node, v.distance = int(node), 0.0
                 v.track.clear()
+                v.track_sampler.reset()
 
         self._owner.call(place)
 
@@ -340,6 +341,8 @@ class RemoteFleet(Fleet):
         with self._owner.cond:
             return {
                 "session": self.session,
+                # trajectory.csv's source=gps rows: one fix per this many seconds of the vehicles' clock
+                "gps_track_rate_hz": self.config.track_rate,
                 "dropped_messages": dict(sorted(self.dropped.items())),
                 "problems": list(self.problems),
                 # what each bridge refused or met (unsigned, foreign_session, seq_ahead...): attacks

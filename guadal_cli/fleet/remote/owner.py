@@ -26,6 +26,7 @@ from ...channel import protocol as msg
 from ...channel.client import Channel
 from ...channel.session import new_session_id
 from ...graph import NavGraph
+from ..track import TrackSampler
 from .config import RemoteConfig
 from .state import Command, RemoteVehicle
 
@@ -44,7 +45,9 @@ class FleetOwner:
         self.graph = graph
         self.config = config
         self.session = new_session_id()
-        self.vehicles = [RemoteVehicle(i) for i in range(n_vehicles)]
+        self.vehicles = [
+            RemoteVehicle(i, track_sampler=TrackSampler(config.track_rate)) for i in range(n_vehicles)
+        ]
         self.dropped: Counter[str] = Counter()
         self.problems: list[str] = []
         self.controls: list[dict] = []
@@ -401,7 +404,8 @@ class FleetOwner:
         self._clock(v, data)
         if v.goto is not None and v.goto.open and v.goto.claimed is not None:
             self._confirm(v, v.goto)
-        if v.t0 is not None:
+        # the track keeps one fix per 1/track_rate seconds of the vehicle's clock, whatever the speed-up
+        if v.t0 is not None and v.track_sampler.take(t):
             v.track.append({"vehicle": v.id, "lat": lat, "lon": lon, "time_s": t - v.t0})
 
     def _on_status(self, v: RemoteVehicle, data: dict) -> None:

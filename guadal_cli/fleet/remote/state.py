@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from ..track import TrackSampler
+
 
 @dataclass
 class Command:
@@ -49,6 +51,7 @@ class RemoteVehicle:
     syncing: bool = False  # waiting for a fresh clock reading to set t0
     fix: tuple[float, float] | None = None
     track: list[dict] = field(default_factory=list)
+    track_sampler: TrackSampler = field(default_factory=TrackSampler)  # keeps fixes at the track rate
     bridge_counters: dict = field(default_factory=dict)  # the bridge's own fault counters (its status)
 
     def next_seq(self) -> int:
