@@ -96,22 +96,24 @@ def run(
     """Run every combination not yet complete; re-run the same command to resume."""
     from ..sweep.engine import run_sweep, to_run
     from ..sweep.manifest import SweepManifest
+    from ..sweep.plan import plan_sweep
+    from ..sweep.spec import load_sweep
     from ..sweep.summary import summarize
 
+    executor = None
     try:
-        plan = _plan(sweep_file)
-        sweep = plan.sweep
-        if output is not None:
-            sweep.output = output
-        if retries is not None:
-            sweep.retries = retries
+        sweep = load_sweep(sweep_file)
+        sweep.output = output or sweep.output
+        sweep.retries = sweep.retries if retries is None else retries
+        # workers start (and import guadal) while this process checks the plan: on another core
+        executor = _executor(scheduler or sweep.scheduler, workers or sweep.workers, len(sweep))
+        plan = plan_sweep(sweep)
         manifest = SweepManifest.open(sweep.output, plan)
         todo = to_run(plan, manifest)
-        executor = (
-            _executor(scheduler or sweep.scheduler, workers or sweep.workers, len(todo)) if todo else None
-        )
-    except GuadalError as exc:
-        raise fail(exc)
+    except (GuadalError, KeyboardInterrupt) as exc:
+        if executor is not None:
+            executor.stop([])
+        raise fail(exc) if isinstance(exc, GuadalError) else typer.Exit(130)
     show = not (quiet or as_json)
     before = manifest.counts()
     if show:
@@ -134,7 +136,6 @@ def run(
         if todo:
             with _progress(len(todo), sweep.name, show) as on_change:
                 counts = run_sweep(plan, manifest, executor, todo, on_change)
-            executor.close()
         else:
             counts = before
             manifest.save(force=True, status="complete" if counts["complete"] == len(plan) else "incomplete")
@@ -147,6 +148,7 @@ def run(
         raise typer.Exit(130)
     finally:
         signal.signal(signal.SIGTERM, previous_term)
+        executor.close()
     try:
         report = summarize(sweep.output) if counts["complete"] else None
     except GuadalError as exc:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
@@ -27,6 +28,21 @@ def _init_local_worker() -> None:
     # (with SIGTERM, which a running mission turns into an 'interrupted' run directory).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.update(_ONE_THREAD)
+    threading.Thread(target=_stop_when_orphaned, args=(os.getppid(),), daemon=True).start()
+    from .. import mission, runner  # noqa: F401  (paid at start-up, while the sweep is being planned)
+
+
+def _ready() -> None:
+    """A no-op task: submitting one per worker starts them all at once."""
+
+
+def _stop_when_orphaned(parent: int) -> None:
+    """A sweep killed outright leaves no worker behind: its mission stops as on Ctrl-C, then it exits."""
+    while os.getppid() == parent:
+        time.sleep(1.0)
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(5.0)
+    os._exit(1)
 
 
 def _died(exc: BaseException) -> dict:
@@ -39,6 +55,8 @@ class LocalExecutor:
     def __init__(self, workers: int):
         self.slots = workers
         self._pool = self._new_pool()
+        for _ in range(workers):  # processes start on demand: ask for all of them now
+            self._pool.submit(_ready)
 
     def _new_pool(self) -> ProcessPoolExecutor:
         import multiprocessing
