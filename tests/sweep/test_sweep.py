@@ -231,10 +231,17 @@ def test_resume_after_kill_skips_completed_missions(tmp_path):
     path = _long_sweep(tmp_path)
     proc = _start_sweep(path, "--workers", "1")
     done = _wait_for_complete(tmp_path / "out", 2, proc)
-    os.killpg(proc.pid, signal.SIGKILL)  # the sweep and its worker, with no chance to clean up
+    proc.kill()  # kill -9 of the sweep: no chance to clean up, its worker left behind
     proc.communicate()
     out = tmp_path / "out"
     assert any(e["status"] != "complete" for e in manifest(out)["combinations"])
+    # the orphaned worker notices, stops its mission as Ctrl-C would, and leaves no run 'running'
+    deadline = time.monotonic() + 60
+    while any(
+        json.loads(m.read_text())["status"] == "running" for m in (out / "runs").glob("*/manifest.json")
+    ):
+        assert time.monotonic() < deadline, "a worker of the killed sweep went on running"
+        time.sleep(0.2)
     stamps = {e["id"]: (out / e["run_dir"] / "metrics.csv").stat().st_mtime_ns for e in done}
 
     again = run_cli("sweep", path, "--workers", "2")
