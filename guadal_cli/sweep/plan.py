@@ -151,7 +151,8 @@ def plan_sweep(sweep: Sweep) -> Plan:
             *(env_cls, env_cfg, graph, sweep.base_dir, mission.seed, where),
         )
         resolved = mission.model_dump(mode="json")  # every field, those added later included
-        resolved["output"].pop("directory")  # where a run is written is not what it does
+        for where_it_goes in ("directory", "database"):  # where a run is written is not what it does
+            resolved["output"].pop(where_it_goes, None)
         resolved.update(map=map_sha, fleet={**fleet, "initial_positions": nodes}, **resolved_sections)
         combo.id = hashlib.sha256(_canonical(resolved).encode()).hexdigest()[:12]
         combo.level = level
