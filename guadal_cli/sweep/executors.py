@@ -23,12 +23,13 @@ from .worker import run_combination
 _ONE_THREAD = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
 
 
-def _init_local_worker() -> None:
+def _init_local_worker(sweep_pid: int) -> None:
     # Ctrl-C reaches the whole process group; only the sweep decides how its workers stop
     # (with SIGTERM, which a running mission turns into an 'interrupted' run directory).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.update(_ONE_THREAD)
-    threading.Thread(target=_stop_when_orphaned, args=(os.getppid(),), daemon=True).start()
+    # the sweep's pid, passed in: read here, it may already be init's when the sweep died during start-up
+    threading.Thread(target=_stop_when_orphaned, args=(sweep_pid,), daemon=True).start()
     from .. import mission, runner  # noqa: F401  (paid at start-up, while the sweep is being planned)
 
 
@@ -62,7 +63,10 @@ class LocalExecutor:
         import multiprocessing
 
         return ProcessPoolExecutor(
-            self.slots, mp_context=multiprocessing.get_context("spawn"), initializer=_init_local_worker
+            self.slots,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_init_local_worker,
+            initargs=(os.getpid(),),
         )
 
     def submit(self, task: dict):
