@@ -158,9 +158,10 @@ class SweepManifest:
         self.save()
 
     def interrupt_running(self) -> None:
+        """After the workers stopped: a mission that completed just before is complete, the rest interrupted."""
         for entry in self.entries.values():
             if entry["status"] == "running":
-                entry["status"] = "interrupted"
+                self._reconcile(entry)
 
     def save(self, force: bool = False, status: str | None = None) -> None:
         if status:
