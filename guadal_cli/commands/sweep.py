@@ -113,7 +113,10 @@ def run(
     except (GuadalError, KeyboardInterrupt) as exc:
         if executor is not None:
             executor.stop([])
-        raise fail(exc) if isinstance(exc, GuadalError) else typer.Exit(130)
+        if isinstance(exc, GuadalError):
+            raise fail(exc)
+        err_console.print("[yellow]interrupted[/] while checking the sweep; nothing was run.")
+        raise typer.Exit(130)
     show = not (quiet or as_json)
     before = manifest.counts()
     if show:
@@ -153,6 +156,9 @@ def run(
         report = summarize(sweep.output) if counts["complete"] else None
     except GuadalError as exc:
         raise fail(exc)
+    except KeyboardInterrupt:
+        err_console.print("[yellow]interrupted[/] while writing the summary; every mission is in sweep.json.")
+        raise typer.Exit(130)
     failed = [e for e in manifest.entries.values() if e["status"] == "failed"]
     if as_json:
         print_json(

@@ -88,14 +88,22 @@ class LocalExecutor:
         return out
 
     def stop(self, handles: list) -> None:
-        # SIGTERM: a running mission writes its run directory as 'interrupted' and the worker ends
-        for process in list(getattr(self._pool, "_processes", {}).values()):
+        # SIGTERM: a running mission writes its run directory as 'interrupted' and the worker ends.
+        # Bounded waits: a worker stopped mid-read of the task queue must not hold the sweep up.
+        processes = list(getattr(self._pool, "_processes", {}).values())
+        for process in processes:
             if process.is_alive():
                 process.terminate()
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        for process in processes:
+            process.join(timeout=30)
+            if process.is_alive():
+                process.kill()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self._stopped = True
 
     def close(self) -> None:
-        self._pool.shutdown(wait=True)
+        if not getattr(self, "_stopped", False):
+            self._pool.shutdown(wait=True)
 
 
 class DaskExecutor:

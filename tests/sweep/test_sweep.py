@@ -221,9 +221,9 @@ def _wait_for_complete(sweep_dir, n, proc, timeout=120):
 
 
 def _long_sweep(tmp_path):
-    # 12 missions of ~0.2 s each: long enough to be caught mid-way
+    # 24 missions of ~0.5 s each on a quiet machine: long enough to be caught mid-way
     return write_sweep(
-        tmp_path, seeds="1..6", base=base_mission(fleet={"vehicles": 3, "max_distance": 150.0})
+        tmp_path, seeds="1..12", base=base_mission(fleet={"vehicles": 3, "max_distance": 600.0})
     )
 
 
@@ -247,7 +247,7 @@ def test_resume_after_kill_skips_completed_missions(tmp_path):
     again = run_cli("sweep", path, "--workers", "2")
     assert again.returncode == 0, again.stderr
     skipped = int(again.stdout.split(" complete (skipped)")[0].rsplit(" ", 1)[-1])
-    assert skipped >= len(done) and f"{12 - skipped} to run" in again.stdout
+    assert skipped >= len(done) and f"{24 - skipped} to run" in again.stdout
     entries = manifest(out)["combinations"]
     assert all(e["status"] == "complete" for e in entries)
     assert stamps == {i: (out / f"runs/{i}" / "metrics.csv").stat().st_mtime_ns for i in stamps}
