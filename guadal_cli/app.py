@@ -14,6 +14,7 @@ from rich.markup import escape
 
 from . import __version__
 from .commands import bridge as bridge_cmd
+from .commands import db as db_cmd
 from .commands import discretize as discretize_cmd
 from .commands import map as map_cmd
 from .commands import mission as mission_cmd
@@ -58,6 +59,7 @@ stack_cmd.register(app)
 discretize_cmd.register(app)
 report_cmd.register(app)
 app.add_typer(sweep_cmd.app, name="sweep")
+app.add_typer(db_cmd.app, name="db")
 
 
 #: exit code of an unforeseen failure (sysexits' EX_SOFTWARE): distinct from bad input (2)

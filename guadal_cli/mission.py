@@ -111,6 +111,11 @@ class OutputSection(_Strict):
         le=MAX_DISTANCE_M,
         description="A node counts as covered within this many metres of a sample.",
     )
+    database: str | None = Field(
+        default=None,
+        description="Database URL the run is also written to (sqlite:///FILE, postgresql://USER@HOST/DB) "
+        "or 'none'; by default guadal.db beside the run directories.",
+    )
 
 
 class Mission(_Strict):
@@ -176,6 +181,10 @@ class Prepared:
         data["backend"] = {"level": self.mission.backend.level, **self.backend_config.model_dump(mode="json")}
         data["fleet"]["initial_positions"] = [{"node": n} for n in self.initial_nodes]
         data["map"] = {"path": str(self.map.source) if self.map.source else self.mission.map.path}
+        if data["output"].get("database"):
+            from .db.engine import redact
+
+            data["output"]["database"] = redact(data["output"]["database"])
         return data
 
 

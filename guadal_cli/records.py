@@ -31,6 +31,7 @@ import json
 import os
 import platform
 import time
+import uuid
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
@@ -80,11 +81,27 @@ def file_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+class RecordSink:
+    """Receives the run as the recorder writes it, each part right after it is on disk.
+
+    The run directory stays the ground truth: a sink (the database writer, ``guadal_cli.db``)
+    must neither raise into the mission nor make it wait. ``first_row`` is the 0-based index of
+    the first row in its CSV file, which makes a key that repeats harmlessly.
+    """
+
+    def started(self, directory: Path, manifest: dict, mission: dict) -> None: ...
+
+    def appended(self, table: str, first_row: int, rows: list, columns: list | None = None) -> None: ...
+
+    def finished(self, manifest: dict) -> None: ...
+
+
 class _CsvStream:
     """An append-only CSV that flushes every row batch (``append``: go on after existing rows)."""
 
     def __init__(self, path: Path, columns: Sequence[str], append: bool = False):
         self.columns = list(columns)
+        self.rows_written = 0
         self._fh = open(path, "a" if append else "w", newline="", encoding="utf-8")
         self._writer = csv.writer(self._fh, lineterminator="\n")
         if not append:
@@ -95,6 +112,7 @@ class _CsvStream:
         for row in rows:
             # floats (numpy's included) inline: they are most cells, and a call each adds up
             self._writer.writerow([format(v, ".10g") if isinstance(v, float) else fmt(v) for v in row])
+            self.rows_written += 1
         self._fh.flush()
 
     def write_columns(self, first: Sequence[int], *columns: Sequence) -> None:
@@ -210,6 +228,7 @@ class RunRecorder:
         manifest: dict,
         metric_columns: Sequence[str],
         progress_every_s: float = PROGRESS_EVERY_S,
+        sinks: Sequence[RecordSink] = (),
     ):
         directory = Path(directory)
         if directory.exists() and any(directory.iterdir()):
@@ -225,9 +244,11 @@ class RunRecorder:
         self.directory = directory
         self._lock = _hold_lock(directory)
         self.replay_until = -1
+        self.sinks = list(sinks)
         self.manifest = {
             "format": RUN_FORMAT,
             "version": RUN_VERSION,
+            "run_id": uuid.uuid4().hex,  # the run's key in a database
             **manifest,
             "guadal_version": __version__,
             "python": platform.python_version(),
@@ -241,6 +262,8 @@ class RunRecorder:
             "metric_columns": list(metric_columns),
             "resumes": [],
         }
+        for sink in self.sinks:  # before the manifest: an interrupt then finds nothing half-started
+            sink.started(directory, dict(self.manifest), resolved_mission)
         (directory / "mission.resolved.yaml").write_text(yaml.safe_dump(resolved_mission, sort_keys=False))
         self.progress_every_s = progress_every_s
         self._write_manifest()
@@ -252,6 +275,7 @@ class RunRecorder:
         """Go on writing an interrupted run; its manifest records this resume."""
         self = cls.__new__(cls)
         self.directory = Path(directory)
+        self.sinks = []  # a resumed run reaches the database through 'guadal db sync'
         self._lock = _hold_lock(self.directory)
         self.manifest = read_manifest(self.directory)
         if self.manifest.get("metric_columns") != list(metric_columns):
@@ -291,18 +315,24 @@ class RunRecorder:
         self.manifest["steps"] = step
         if step <= self.replay_until:
             return  # on disk already
-        self.trajectory.write(trajectory_rows)
-        self.measurements.write(measurement_rows)
-        self.metrics.write([[metrics[c] for c in self.metrics.columns]])
+        self._append("trajectory", self.trajectory, trajectory_rows)
+        self._append("measurements", self.measurements, measurement_rows)
+        self._append("metrics", self.metrics, [[metrics[c] for c in self.metrics.columns]])
         self.manifest["progress"] = progress(metrics)
         if time.monotonic() - self._progress_written >= self.progress_every_s:
             self.manifest["progress"]["updated_at"] = now_iso()
             self._write_manifest()
             self._progress_written = time.monotonic()
 
-    def write_track(self, step: int, rows: list) -> None:
+    def write_track(self, step: int, rows: Iterable[Sequence]) -> None:
         if step > self.replay_until:
-            self.trajectory.write(rows)
+            self._append("trajectory", self.trajectory, list(rows))
+
+    def _append(self, table: str, stream: _CsvStream, rows: list, columns: list | None = None) -> None:
+        first = stream.rows_written
+        stream.write(rows)
+        for sink in self.sinks:
+            sink.appended(table, first, rows, columns)
 
     def write_fields(self, graph, ground_truth, fields: dict) -> None:
         """Final per-node maps (truth, mean, std, ...) for reports and plots."""
@@ -311,6 +341,13 @@ class RunRecorder:
         stream = _CsvStream(self.directory / "fields.csv", columns)
         arrays = ([ground_truth] if ground_truth is not None else []) + [fields[k] for k in sorted(fields)]
         stream.write_columns(np.arange(graph.n_nodes), graph.rows, graph.cols, graph.lat, graph.lon, *arrays)
+        if self.sinks:  # the database gets the same cells as rows
+            rows = [
+                [i, graph.rows[i], graph.cols[i], graph.lat[i], graph.lon[i], *(a[i] for a in arrays)]
+                for i in range(graph.n_nodes)
+            ]
+            for sink in self.sinks:
+                sink.appended("fields", 0, rows, columns)
         stream.close()
 
     def record_event(self, kind: str, vehicle: int | None, time_s: float, message: str, detail: dict) -> None:
@@ -325,3 +362,5 @@ class RunRecorder:
         self.manifest.update(status=status, ended_at=now_iso(), error=error, **(extra or {}))
         self._write_manifest()
         self._lock.close()
+        for sink in self.sinks:
+            sink.finished(dict(self.manifest))

@@ -24,7 +24,7 @@ from .errors import GuadalError
 from .fleet.base import Fleet, Measurement
 from .mission import Prepared
 from .planners.base import SEQUENTIAL
-from .records import RunRecorder
+from .records import RunRecorder, file_sha256
 from .resume import ReplayFleet, read_record
 
 #: steps a vehicle may wait for a blocked node before it looks for another way round
@@ -93,14 +93,18 @@ class MissionRunner:
         output: Path | None = None,
         on_step: Callable[[int, Fleet], None] | None = None,
         resume: bool = False,
+        database: str | None = None,
     ):
         """``resume``: ``output`` is an interrupted run of this mission; replay it and go on."""
+        from .db.engine import resolve_url
+
         self.prep = prep
         self.resume = resume
         self.mission = prep.mission
         self.graph = prep.graph
         self.output = Path(output) if output else default_run_dir(prep)
         self.on_step = on_step or (lambda step, fleet: None)
+        self.database = resolve_url(database, prep.mission.output.database, runs_dir=self.output.parent)
         self.environment = prep.environment
         self.planner = prep.algorithm_cls(prep.algorithm_config)
         self.planner.reset(self.graph, self.mission.fleet.vehicles, prep.mode, prep.planner_seed)
@@ -115,6 +119,8 @@ class MissionRunner:
 
     # --- bookkeeping -----------------------------------------------------------------------
     def _manifest(self) -> dict:
+        from .db.engine import redact
+
         prep = self.prep
         gt = getattr(prep.environment_config, "ground_truth", None)
         plugin_info = {
@@ -132,8 +138,14 @@ class MissionRunner:
             "vehicles": self.n,
             "mission_file": str(prep.path),
             "mission_dir": str(prep.base_dir),
-            "map": {"path": str(prep.map.source), "name": prep.map.name, **prep.map.summary()},
+            "map": {
+                "path": str(prep.map.source),
+                "name": prep.map.name,
+                **prep.map.summary(),
+                "sha256": file_sha256(prep.map.source) if prep.map.source else None,
+            },
             "plugins": plugin_info,
+            "database": redact(self.database),
         }
 
     def _record(self, fleet: Fleet, measurements: list[Measurement]) -> None:
@@ -254,12 +266,20 @@ class MissionRunner:
 
     # --- the loop ----------------------------------------------------------------------------
     def run(self) -> RunResult:
+        from .db.writer import DatabaseWriter
+
         prep = self.prep
         columns = metric_columns(self.n, self.environment.metric_names)
-        if self.resume:
+        if self.resume:  # the database catches up with 'guadal db sync RUN' afterwards
             self.recorder = RunRecorder.reopen(self.output, columns)
         else:
-            self.recorder = RunRecorder(self.output, prep.resolved_dict(), self._manifest(), columns)
+            self.recorder = RunRecorder(
+                self.output,
+                prep.resolved_dict(),
+                self._manifest(),
+                columns,
+                sinks=[DatabaseWriter(self.database)] if self.database else [],
+            )
         previous_term = signal.getsignal(signal.SIGTERM)
 
         def _on_term(signum, frame):

@@ -34,6 +34,12 @@ def register(app: typer.Typer) -> None:
             help="Print only the run directory (for scripts): no progress bar or summary.",
         ),
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+        db: str | None = typer.Option(
+            None,
+            "--db",
+            help="Also write the run to this database: sqlite:///FILE, postgresql://USER@HOST/DB or none "
+            "(default: $GUADAL_DB, the mission's output.database, else guadal.db beside the runs).",
+        ),
     ) -> None:
         """Run a mission and write its run directory."""
         from ..mission import prepare
@@ -49,7 +55,7 @@ def register(app: typer.Typer) -> None:
             )
             run_dir = output
         try:
-            runner = MissionRunner(prepare(mission, seed=seed), output=run_dir)
+            runner = MissionRunner(prepare(mission, seed=seed), output=run_dir, database=db)
         except GuadalError as exc:
             raise fail(exc)
         run_with_progress(runner, quiet=quiet, as_json=as_json)

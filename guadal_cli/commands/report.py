@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from contextlib import nullcontext
+from contextlib import ExitStack, contextmanager, nullcontext
 from pathlib import Path
 
 import typer
@@ -14,7 +14,7 @@ from ..console import console, err_console, fail, print_json
 def register(app: typer.Typer) -> None:
     @app.command("report")
     def report(
-        runs: list[Path] = typer.Argument(..., help="Run directories, or folders that contain them."),
+        runs: list[Path] = typer.Argument(None, help="Run directories, or folders that contain them."),
         output: Path | None = typer.Option(
             None,
             "--output",
@@ -57,6 +57,14 @@ def register(app: typer.Typer) -> None:
         ),
         as_json: bool = typer.Option(False, "--json", help="Print the tables as JSON."),
         as_markdown: bool = typer.Option(False, "--markdown", help="Print the tables as Markdown."),
+        db: str | None = typer.Option(
+            None, "--db", help="Compare runs from this database (URL) instead of run directories."
+        ),
+        where: list[str] = typer.Option(
+            None,
+            "--where",
+            help="With --db: KEY=VALUE filter (algorithm, level, map, status, ...); repeatable.",
+        ),
     ) -> None:
         """Compare runs: per-run and per-group tables; with --output also figures, animations, GeoJSON/KML, ground-station plans and one HTML page."""
         from ..errors import GuadalError
@@ -76,7 +84,12 @@ def register(app: typer.Typer) -> None:
             animate_runs=animate_runs,
         )
         quiet = as_csv or as_json or as_markdown
+        if bool(runs) == bool(db):
+            raise fail("give run directories or --db URL (with --where filters), one of the two.")
+        exported = ExitStack()  # with --db: the matching runs, exported to a folder the report reads
         try:
+            if db:
+                runs = [exported.enter_context(runs_from_database(db, where or []))]
             swept = sweep_runs(runs)  # a sweep directory: its runs, grouped by its axes
             found = swept[0] if swept else find_runs(runs)
             if group_by is None:
@@ -94,6 +107,8 @@ def register(app: typer.Typer) -> None:
                     write(result, output, options, on_file)
         except GuadalError as exc:
             raise fail(exc)
+        finally:
+            exported.close()
         for warning in result.warnings:
             err_console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
         if as_json:
@@ -158,3 +173,18 @@ def _numeric(text: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+@contextmanager
+def runs_from_database(db: str, where: list[str]):
+    """A temporary folder holding the runs of database ``db`` that match the ``where`` filters."""
+    import tempfile
+
+    from ..db.engine import resolve_url
+    from ..db.export import export_matching, parse_where
+    from ..db.queries import open_database
+
+    parse_where(where)  # a wrong filter is named before the database is opened
+    with tempfile.TemporaryDirectory(prefix="guadal-report-") as folder:
+        export_matching(open_database(resolve_url(db)), where, Path(folder))
+        yield Path(folder)

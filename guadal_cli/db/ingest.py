@@ -1,0 +1,110 @@
+"""``guadal db import`` and ``guadal db sync``: a run directory's files into the database.
+
+The CSVs are the ground truth; importing reads them whole and inserts what is missing, so it
+is idempotent and also repairs a run whose live writer was cut off (``kill -9``, an outage
+that outlived the mission). A last line without its newline (a write cut short) is left out.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from ..errors import GuadalError
+from .store import count_rows, parse_cell, save_rows, save_run
+
+SPOOL_NAME = "database.spool.jsonl"
+_BATCH = 2000
+_FILES = (("metrics", "metrics.csv"), ("trajectory", "trajectory.csv"), ("measurements", "measurements.csv"))
+
+
+@dataclass
+class Imported:
+    directory: Path
+    uid: str
+    status: str
+    rows: int  # rows read from the CSVs
+    new_rows: int  # rows the database did not have yet
+
+
+def read_csv_rows(path: Path) -> tuple[list[str], list[list]]:
+    """Header and parsed rows of a CSV; a torn last line (no newline) is dropped."""
+    if not path.is_file():
+        return [], []
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):
+        data = data[: data.rfind(b"\n") + 1]
+    reader = csv.reader(io.StringIO(data.decode("utf-8")))
+    header = next(reader, [])
+    return header, [[parse_cell(c) for c in row] for row in reader if row]
+
+
+def read_run(directory: Path) -> tuple[dict, dict]:
+    """The manifest and resolved mission of a run directory, or one sentence on what is wrong."""
+    directory = Path(directory)
+    manifest_path = directory / "manifest.json"
+    if not manifest_path.is_file():
+        raise GuadalError(f"{directory}: not a run directory (it has no manifest.json).")
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise GuadalError(f"{manifest_path}: not valid JSON ({exc}).") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != "guadal-run":
+        raise GuadalError(f"{manifest_path}: not a guadal run manifest (format must be 'guadal-run').")
+    mission = {}
+    resolved = directory / "mission.resolved.yaml"
+    if resolved.is_file():
+        try:
+            mission = yaml.safe_load(resolved.read_text()) or {}
+        except yaml.YAMLError:
+            raise GuadalError(f"{resolved}: not valid YAML.") from None
+    return manifest, mission
+
+
+def import_run(engine, directory: Path) -> Imported:
+    """Make the database hold everything in ``directory``; safe to repeat, safe beside a live writer."""
+    directory = Path(directory).resolve()
+    manifest, mission = read_run(directory)
+    total = 0
+    with engine.begin() as conn:
+        run = save_run(conn, manifest, mission, str(directory), base=directory)
+        before = count_rows(conn, run)
+        for table, name in _FILES:
+            header, rows = read_csv_rows(directory / name)
+            if table == "metrics" and header:
+                run.metric_columns = header
+            total += len(rows)
+            for start in range(0, len(rows), _BATCH):
+                save_rows(conn, run, table, start, rows[start : start + _BATCH])
+        header, rows = read_csv_rows(directory / "fields.csv")
+        total += len(rows)
+        for start in range(0, len(rows), _BATCH):
+            save_rows(conn, run, "fields", start, rows[start : start + _BATCH], columns=header)
+        new = count_rows(conn, run) - before
+    spool = directory / SPOOL_NAME
+    if spool.exists():
+        spool.unlink()  # everything it held is in the CSVs, and now in the database
+    return Imported(directory, run.uid, str(manifest.get("status")), total, new)
+
+
+def find_run_dirs(paths: list[Path]) -> list[Path]:
+    """Run directories named, or found one level inside the folders named."""
+    found = []
+    for path in paths:
+        path = Path(path)
+        if (path / "manifest.json").is_file():
+            found.append(path)
+        elif path.is_dir():
+            found.extend(sorted(p for p in path.iterdir() if (p / "manifest.json").is_file()))
+        else:
+            raise GuadalError(f"{path}: no such run directory.")
+    if not found:
+        raise GuadalError(
+            f"no run directories (folders with a manifest.json) in {', '.join(map(str, paths))}."
+        )
+    return found
