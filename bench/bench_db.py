@@ -70,6 +70,8 @@ def run_once(folder: Path, url: str) -> float:
     runner = MissionRunner(prep, output=out, database=url)
     t0 = time.perf_counter()
     result = runner.run()
+    for sink in runner.recorder.sinks:
+        sink.close()  # until the rows are in the database
     elapsed = time.perf_counter() - t0
     assert result.status == "complete"
     return elapsed

@@ -12,12 +12,14 @@ stays on disk; ``guadal db sync RUN`` delivers it from the CSVs.
 
 from __future__ import annotations
 
+import atexit
 import itertools
 import json
 import logging
 import queue
 import threading
 import time
+import weakref
 from pathlib import Path
 
 from ..records import RecordSink
@@ -26,6 +28,16 @@ from .ingest import SPOOL_NAME
 from .store import RunRef, cell, notify
 
 log = logging.getLogger(__name__)
+
+#: writers whose thread may still be delivering; the process waits for them when it exits
+_LIVE: weakref.WeakSet = weakref.WeakSet()
+
+
+@atexit.register
+def _drain_live_writers() -> None:
+    for writer in list(_LIVE):
+        writer.close()
+
 
 #: items (one recorder call each) waiting for the database before the mission thread spools them
 QUEUE_SIZE = 4096
@@ -72,17 +84,23 @@ class DatabaseWriter(RecordSink):
         self._mission = _jsonable(mission)
         self._put({"op": "run", "manifest": _jsonable(manifest)})
         self._thread = threading.Thread(target=self._loop, name="guadal-db-writer", daemon=True)
+        _LIVE.add(self)
         self._thread.start()
 
     def appended(self, table: str, first_row: int, rows: list, columns: list | None = None) -> None:
         self._put({"op": "rows", "table": table, "first": first_row, "rows": rows, "columns": columns})
 
     def finished(self, manifest: dict) -> None:
+        """Hand over the final manifest and let the thread finish on its own: the run returns now.
+
+        The process waits for it when it exits (``atexit``, bounded: a database still away gets
+        one last try, then the rest stays in the spool for 'db sync').
+        """
         self._put({"op": "run", "manifest": _jsonable(manifest)})
-        self.close()
+        self._stop.set()
 
     def close(self) -> None:
-        """Deliver what is queued (waiting at most ``close_timeout_s``), then stop the thread."""
+        """Wait (at most ``close_timeout_s``) until what is queued is delivered or spooled."""
         if self._thread is None:
             return
         self._stop.set()
@@ -92,13 +110,11 @@ class DatabaseWriter(RecordSink):
             # Ctrl-C (or SIGTERM) while the last rows go out: the run's files are complete, so the
             # interrupt only cuts this wait short; what is not delivered 'guadal db sync' delivers
             self.last_error_ = self.last_error_ or "interrupted while delivering the last rows"
-        pending = self._spool_size()
-        if self._thread.is_alive() or pending:
+        if self._thread.is_alive():
             log.warning(
-                "database %s did not take every row before the mission ended (%s); they are kept in "
-                "the run directory: run 'guadal db sync %s' when the database is back.",
+                "database %s is still taking the run's last rows; if this process ends first, "
+                "run 'guadal db sync %s'.",
                 self.shown_url,
-                self.last_error_ or "still writing",
                 self.spool_path_.parent if self.spool_path_ else "RUN",
             )
         if not self._thread.is_alive() and self.engine_ is not None:
@@ -140,9 +156,18 @@ class DatabaseWriter(RecordSink):
             if self._spool_size() and (time.monotonic() >= retry_at or last_call):
                 if not self._replay_spool():
                     retry_at = time.monotonic() + self.retry_every_s
-                    if last_call:
-                        return  # still away when the mission ends: the spool stays for 'db sync'
+                    if last_call:  # still away when the mission ends: the spool stays for 'db sync'
+                        log.warning(
+                            "database %s did not take every row of the run (%s); they are kept in the "
+                            "run directory: run 'guadal db sync %s' when the database is back.",
+                            self.shown_url,
+                            self.last_error_,
+                            self.spool_path_.parent,
+                        )
+                        return
             if last_call and not self._spool_size():
+                if self.engine_ is not None:
+                    self.engine_.dispose()
                 return
 
     def _take(self, wait: float) -> list[dict]:

@@ -20,6 +20,8 @@ def run_mission(tmp_path: Path, name: str, database: str | None, on_step=None, *
     runner = MissionRunner(prepare(path), output=tmp_path / name, on_step=on_step, database=database)
     result = runner.run()
     assert result.status == "complete"
+    for sink in runner.recorder.sinks:
+        sink.close()  # the run returned at once; its last rows go out in the background
     return runner
 
 

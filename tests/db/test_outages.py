@@ -87,6 +87,7 @@ def run_through_outage(mission: dict, tmp_path: Path, db_url: str, outage, begin
     result = runner.run()
     assert result.status == "complete" and result.steps > end
     writer = runner.recorder.sinks[0]
+    writer.close()  # the run returned at once; its last rows go out in the background
     assert seen["spooled"], "rows written during the outage went to the spool"
     assert writer.outages_ >= 1
     assert not writer.spool_path_.exists(), "the spool was delivered and removed"
@@ -131,6 +132,7 @@ def test_a_full_queue_spools_instead_of_waiting(tmp_path, monkeypatch):
     path.write_text(yaml.safe_dump(base_mission()))
     runner = MissionRunner(prepare(path), output=tmp_path / "run", database=url)
     assert runner.run().status == "complete"
+    runner.recorder.sinks[0].close()
     assert spooled, "the one-item queue overflowed into the spool"
     engine = queries.open_database(url)
     run = queries.get_run(engine, "run")
