@@ -1,4 +1,4 @@
-"""Shared fixtures (helpers that are not fixtures live in support.py)."""
+"""Shared fixtures (helpers that are not fixtures live in the support package)."""
 
 from __future__ import annotations
 

@@ -17,8 +17,8 @@ import threading
 
 import pytest
 import yaml
-from fleet_support import Inbox, login, wait_for
 from support import LAKE, base_mission, run_cli
+from support.fleet import Inbox, login, wait_for
 
 from guadal_cli.channel import protocol as msg
 from guadal_cli.channel.broker import mosquitto_binary

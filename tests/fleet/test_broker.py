@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from fleet_support import Inbox, connect_refused, wait_for
+from support.fleet import Inbox, connect_refused, wait_for
 
 from guadal_cli.channel.broker import mosquitto_binary, port_accepts, start_broker
 from guadal_cli.errors import GuadalError

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-from fleet_support import processes_marked
 from support import ROOT
+from support.fleet import processes_marked
 
 from guadal_cli.mission import prepare
 from guadal_cli.runner import MissionRunner

@@ -9,8 +9,8 @@ import signal
 import threading
 
 import pytest
-from fleet_support import Inbox, login, wait_for
 from support import LAKE
+from support.fleet import Inbox, login, wait_for
 
 from guadal_cli.channel import protocol as msg
 from guadal_cli.channel.broker import start_broker

@@ -11,8 +11,8 @@ import uuid
 from pathlib import Path
 
 import yaml
-from fleet_support import Inbox, connect_refused, processes_marked, wait_for
 from support import LAKE, ROOT, run_cli
+from support.fleet import Inbox, connect_refused, processes_marked, wait_for
 from typer.testing import CliRunner
 
 from guadal_cli.app import app

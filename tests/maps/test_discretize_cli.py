@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 import yaml
-from maps_support import bounds_text, disc, draw_grid, draw_image, write_latlon_grid
 from PIL import Image
 from support import ROOT, run_cli
+from support.maps import bounds_text, disc, draw_grid, draw_image, write_latlon_grid
 
 EXAMPLE = ROOT / "examples" / "lake_satellite.png"
 EXAMPLE_BOUNDS = "37.4200,37.4164,-5.9780,-5.9830"

@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from maps_support import (
+from support.maps import (
     L_AREA,
     L_ARM,
     L_EAST,
@@ -71,7 +71,7 @@ def test_l_shaped_lake_edges_and_notch_are_where_they_were_drawn(tmp_path, cell)
 
 
 def _latlon(x, y):
-    from maps_support import latlon
+    from support.maps import latlon
 
     lat, lon = latlon(x, y)
     return float(lat), float(lon)

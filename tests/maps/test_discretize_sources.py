@@ -4,7 +4,8 @@ import math
 
 import numpy as np
 import pytest
-from maps_support import (
+from PIL import Image
+from support.maps import (
     L_SHAPE,
     bounds_text,
     circle_ring,
@@ -17,7 +18,6 @@ from maps_support import (
     write_geojson,
     write_latlon_grid,
 )
-from PIL import Image
 
 from guadal_cli.errors import GuadalError
 from guadal_cli.maps.discretize import DiscretizeOptions, discretize
@@ -81,7 +81,7 @@ def test_water_up_to_the_coordinate_grid_edge_stops_there(tmp_path):
 def test_whitespace_delimited_mask_with_bounds(tmp_path):
     path = tmp_path / "lake.txt"
     draw_grid(path, disc(40.0), dx=2.0, dy=2.0, half_w=50, half_h=50, delimiter=" ")
-    from maps_support import bounds_of
+    from support.maps import bounds_of
 
     source = open_source(path, bounds=bounds_text(bounds_of(50, 50)))
     m = discretize(source, DiscretizeOptions(cell_size_m=4.0)).map

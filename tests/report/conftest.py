@@ -2,14 +2,8 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))  # report_support, also the GPS backend's module
-
-from report_support import run_mission  # noqa: E402
+from support.report import run_mission
 
 
 @pytest.fixture(scope="session")
@@ -26,4 +20,4 @@ def runs_root(tmp_path_factory):
 def gps_run(tmp_path_factory):
     """One run whose fleet reported GPS fixes, as sitl and real runs do."""
     root = tmp_path_factory.mktemp("gps")
-    return run_mission(root, "gps", 1, backend={"level": "report_support:GpsTrackBackend"})
+    return run_mission(root, "gps", 1, backend={"level": "support.report:GpsTrackBackend"})

@@ -13,7 +13,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 from PIL import Image
-from report_support import invoke
+from support.report import invoke
 
 from guadal_cli.report.animate import scene
 from guadal_cli.report.build import Options, build

@@ -8,8 +8,8 @@ import shutil
 import statistics
 
 import pytest
-from report_support import invoke, run_mission
 from support import ROOT, run_cli
+from support.report import invoke, run_mission
 
 from guadal_cli.errors import GuadalError
 from guadal_cli.report.build import Options, build

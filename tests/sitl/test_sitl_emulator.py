@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from sitl_support import (
+from support.sitl import (
     POSITION_ONLY,
     arm,
     barrier,

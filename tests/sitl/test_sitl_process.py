@@ -10,7 +10,7 @@ import statistics
 import subprocess
 
 import pytest
-from sitl_support import METRES_PER_DEG, SITL_MODULE, connect, start_sitl, stop_sitl, wait_for
+from support.sitl import METRES_PER_DEG, SITL_MODULE, connect, start_sitl, stop_sitl, wait_for
 
 BAD_RUNS = {
     "home": ["--home", "north-of-here", "--base-port", "0"],

@@ -2,15 +2,9 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))  # vehicle_support, beside this file
-
-from vehicle_support import LAKE, Stack  # noqa: E402
+from support.vehicle import LAKE, Stack
 
 from guadal_cli.channel.broker import start_broker
 from guadal_cli.graph import NavGraph

@@ -15,8 +15,8 @@ import textwrap
 
 import numpy as np
 import pytest
-from fleet_support import wait_for
-from vehicle_support import Planner, Stack
+from support.fleet import wait_for
+from support.vehicle import Planner, Stack
 
 from guadal_cli.channel import protocol as messages
 from guadal_cli.channel.broker import start_broker
@@ -233,7 +233,7 @@ def test_measure_reads_the_synthetic_truth_where_the_boat_is(shared, planner):
 
 
 def test_status_is_retained_with_counters(shared, own_broker):
-    from fleet_support import Inbox
+    from support.fleet import Inbox
 
     late = Inbox(own_broker["broker"].port)  # a planner that connects later still learns the vehicle's state
     try:

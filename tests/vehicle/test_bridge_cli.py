@@ -84,8 +84,8 @@ def test_sigterm_while_waiting_for_the_autopilot_exits_quietly(lake, tmp_path):
     import signal
     import subprocess
 
-    from fleet_support import wait_for
-    from vehicle_support import GUADAL
+    from support.fleet import wait_for
+    from support.vehicle import GUADAL
 
     log = tmp_path / "bridge.log"
     with open(log, "w") as out:

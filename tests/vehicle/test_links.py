@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from vehicle_support import Probe, Stack
+from support.vehicle import Probe, Stack
 
 from guadal_cli.maps.format import haversine_m
 

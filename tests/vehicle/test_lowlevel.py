@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from vehicle_support import LAKE
+from support.vehicle import LAKE
 
 from guadal_cli.errors import GuadalError
 from guadal_cli.graph import NavGraph

@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 import pytest
-from vehicle_support import Probe
+from support.vehicle import Probe
 
 from guadal_cli import plugins
 from guadal_cli.errors import GuadalError

@@ -13,10 +13,9 @@ import threading
 import uuid
 from pathlib import Path
 
-from fleet_support import Inbox
-
 from guadal_cli.channel import protocol as messages
 from guadal_cli.graph import NavGraph
+from support.fleet import Inbox
 
 GUADAL = [sys.executable, "-m", "guadal_cli"]
 

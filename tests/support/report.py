@@ -1,6 +1,6 @@
 """Helpers for the report tests: real missions run in-process, and a fleet that reports GPS fixes.
 
-``GpsTrackBackend`` is a backend plugin (named ``report_support:GpsTrackBackend`` in a mission)
+``GpsTrackBackend`` is a backend plugin (named ``support.report:GpsTrackBackend`` in a mission)
 that moves exactly like the ``sim`` level and also reports a GPS fix halfway along every hop and
 one at every node, as a remote fleet does. It lets the report's planned-versus-GPS figure and
 off-track columns be tested on a run the real runner wrote.
@@ -11,11 +11,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
-from support import base_mission
 
 from guadal_cli.fleet.local import LocalFleet, SimBackend
 from guadal_cli.mission import prepare
 from guadal_cli.runner import MissionRunner
+from support import base_mission
 
 
 class GpsLocalFleet(LocalFleet):

@@ -1,4 +1,12 @@
-"""Test helpers shared by every folder: the repository's paths, the real CLI, a small mission."""
+"""Test helpers, in one package: import what a test needs from the module named after its area.
+
+- ``support`` (here): the repository's paths, the real CLI as a process, a small gp mission.
+- ``support.fleet``: a recording paho client, polling with a deadline, processes by env mark.
+- ``support.sitl``: ``guadal sitl`` as a process and a pymavlink ground station for it.
+- ``support.vehicle``: emulator + bridge + planner client stacks for the bridge tests.
+- ``support.maps``: lakes of known geometry drawn as images, grids and outlines.
+- ``support.report``: real missions run in-process and a backend that reports GPS fixes.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LAKE = ROOT / "maps" / "urban_lake.json"
 
 
