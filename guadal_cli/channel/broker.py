@@ -312,6 +312,48 @@ def _expire_silent_clients() -> None:
     BrokerProtocolHandler.handle_read_timeout = expire
 
 
+def _keep_clean_disconnects() -> None:
+    """Make amqtt honour a DISCONNECT that arrives before its session loop starts waiting for it.
+
+    amqtt forgets the DISCONNECT packet once it has resolved the waiter; if the client
+    disconnected while the broker was still busy after CONNACK, the loop then sees "no packet"
+    and publishes the will of a client that left cleanly (MQTT 3.1.1 §3.14.4 says it must not).
+    """
+    from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
+
+    handle_disconnect = BrokerProtocolHandler.handle_disconnect
+
+    async def remember(self, disconnect) -> None:
+        if getattr(self, "_clean_disconnect", None) is None:
+            self._clean_disconnect = disconnect
+        await handle_disconnect(self, disconnect)
+
+    async def wait_disconnect(self):
+        if self._disconnect_waiter is None:  # already resolved: answer what it was resolved with
+            return getattr(self, "_clean_disconnect", None)
+        return await self._disconnect_waiter
+
+    BrokerProtocolHandler.handle_disconnect = remember
+    BrokerProtocolHandler.wait_disconnect = wait_disconnect
+
+
+def _retained_only_to_subscribers() -> None:
+    """Send a connecting client the retained messages of its own subscriptions only.
+
+    On every CONNECT amqtt replays retained messages for *every* subscription in the broker,
+    including other clients' ones, to the new client, which never asked for them.
+    """
+    from amqtt.broker import Broker
+
+    publish = Broker._publish_retained_messages_for_subscription
+
+    async def only_if_subscribed(self, subscription, session) -> None:
+        if any(s.client_id == session.client_id for s, _ in self._subscriptions.get(subscription[0], ())):
+            await publish(self, subscription, session)
+
+    Broker._publish_retained_messages_for_subscription = only_if_subscribed
+
+
 def run_embedded(host: str, port: int, password_file: str | None = None, acl_file: str | None = None) -> None:
     """Serve until SIGTERM/SIGINT (blocking)."""
     import asyncio
@@ -323,6 +365,8 @@ def run_embedded(host: str, port: int, password_file: str | None = None, acl_fil
     from amqtt.broker import Broker
 
     _expire_silent_clients()
+    _keep_clean_disconnects()
+    _retained_only_to_subscribers()
 
     async def serve() -> None:
         broker = Broker(_amqtt_config(host, port, password_file, acl_file))

@@ -57,6 +57,17 @@ def test_retained_message_reaches_late_subscribers_and_can_be_cleared(broker, cl
     assert later.on("r/status") == []
 
 
+def test_a_connecting_client_gets_no_retained_message_it_did_not_subscribe_to(broker, clients):
+    pub, subscriber = clients(), clients()
+    subscriber.subscribe("n/#")  # someone else's subscription on the broker
+    pub.client.publish("n/status", b"online", qos=1, retain=True).wait_for_publish(10)
+    bystander = clients()
+    bystander.subscribe("n-marker")
+    pub.client.publish("n-marker", b"end", qos=1).wait_for_publish(10)
+    bystander.wait(lambda: bystander.on("n-marker"), 10, "the marker was not delivered")
+    assert [m.topic for m in bystander.messages] == ["n-marker"]
+
+
 def test_last_will_on_abrupt_disconnect_but_not_on_a_clean_one(broker, clients):
     watcher = clients()
     watcher.subscribe("w/+/status")
