@@ -1,8 +1,14 @@
 """The one exception users see.
 
-A :class:`GuadalError` carries a single sentence that names what is wrong and what is allowed.
-The CLI prints it without a traceback and exits with code 2; library callers can catch it.
+A :class:`GuadalError` says in one sentence what is wrong and what is allowed, and where:
+``file`` (a mission or map) and ``field`` (a dotted path such as ``fleet.max_distance``, or a
+parameter of a library call such as ``cell_size_m``). The library never names command-line
+flags; the CLI maps fields to flags where they came from one (``flag``). One handler in the
+app (``console.GuadalGroup``) prints the sentence without a traceback and exits with code 2; library
+callers catch it like any exception.
 """
+
+from __future__ import annotations
 
 #: control characters a user's value may smuggle into a sentence, shown escaped (a newline in a
 #: plugin name or a path must not split the sentence, nor move the terminal's cursor)
@@ -14,8 +20,41 @@ class GuadalError(Exception):
 
     exit_code = 2
 
-    def __init__(self, message: str = "", *args):
-        super().__init__(str(message).translate(_ESCAPED), *args)
+    def __init__(self, message: str = "", *, field: str | None = None, file=None) -> None:
+        message = str(message).translate(_ESCAPED)
+        super().__init__(message)
+        self.message = message
+        self.field = None if field is None else str(field).translate(_ESCAPED)
+        self.file = None if file is None else str(file).translate(_ESCAPED)
+        self.flag: str | None = None
+
+    def within(self, field: str | None = None, *, file=None) -> GuadalError:
+        """The same error seen from the caller: under a parent ``field``, in ``file``.
+
+        Returns the error itself, so a caller writes ``raise exc.within("environment")``.
+        """
+        if field:
+            field = str(field).translate(_ESCAPED)
+            self.field = f"{field}.{self.field}" if self.field else field
+        if file is not None and self.file is None:
+            self.file = str(file).translate(_ESCAPED)
+        return self
+
+    def __str__(self) -> str:
+        where = f"{self.file}: " if self.file else ""
+        if self.flag:
+            return f"{where}{self.flag} {self.message}"
+        return f"{where}{self.field}: {self.message}" if self.field else f"{where}{self.message}"
+
+    def __reduce__(self):
+        # keep the context when pickled (worker processes send errors back to their parent)
+        return _rebuild, (type(self), self.message, self.field, self.file, self.flag)
+
+
+def _rebuild(cls, message, field, file, flag) -> GuadalError:
+    exc = cls(message, field=field, file=file)
+    exc.flag = flag
+    return exc
 
 
 def _model_at(model, loc):

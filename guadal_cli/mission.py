@@ -393,7 +393,7 @@ def resolve_plugins(mission: Mission, where: str = "") -> tuple:
         alg_cls, alg_cfg = plugins.build_config("algorithm", mission.algorithm.as_dict(), "algorithm")
         # the level names the backend plugin, and stays among its settings
         backend_cls, backend_cfg = plugins.build_config(
-            "backend", {"type": mission.backend.level, **mission.backend.model_dump()}, "backend"
+            "backend", mission.backend.model_dump(), "backend", name_key="level"
         )
     except GuadalError as exc:
         raise GuadalError(f"{where}{exc}") from exc
@@ -440,7 +440,7 @@ def prepare_dict(
         map_ = load_map(mission_map_path(mission, base_dir))
         check_node_limit(map_)
     except GuadalError as exc:
-        raise GuadalError(f"{where}map.path: {exc}") from exc
+        raise exc.within("map.path", file=path) from None
     graph = NavGraph(map_)
     initial_nodes = resolve_initial_nodes(mission.fleet, graph, where)
     env_seed, planner_seed = mission_seeds(mission.seed)
@@ -448,7 +448,7 @@ def prepare_dict(
         environment = env_cls(env_cfg, graph, base_dir=base_dir)
         environment.reset(env_seed)
     except GuadalError as exc:
-        raise GuadalError(f"{where}{exc}") from exc
+        raise exc.within(file=path) from None
     return Prepared(
         mission=mission,
         path=path,

@@ -116,10 +116,12 @@ def describe(kind: str, name: str) -> dict:
     return {"name": name, "distribution": info.distribution, "version": info.version}
 
 
-def build_config(kind: str, section, where: str):
+def build_config(kind: str, section, where: str, name_key: str = "type"):
     """Resolve a ``{type: NAME, ...params}`` section: the plugin class and its validated config.
 
-    ``where`` is the field path shown in errors (``environment.ground_truth``).
+    ``where`` is the field path shown in errors (``environment.ground_truth``); ``name_key`` is
+    the key that names the plugin (a backend is named by its ``level``, which stays among its
+    settings).
     """
     from pydantic import ValidationError
 
@@ -127,13 +129,13 @@ def build_config(kind: str, section, where: str):
 
     if isinstance(section, str):
         section = {"type": section}
-    if not isinstance(section, dict) or "type" not in section:
-        raise GuadalError(f"{where}: must be a mapping with a 'type' naming the {kind}.")
+    if not isinstance(section, dict) or name_key not in section:
+        raise GuadalError(f"must be a mapping with a '{name_key}' naming the {kind}.", field=where)
     params = {k: v for k, v in section.items() if k != "type"}
     try:
-        cls = load(kind, str(section["type"]))
+        cls = load(kind, str(section[name_key]))
     except GuadalError as exc:
-        raise GuadalError(f"{where}.type: {exc}") from exc
+        raise exc.within(f"{where}.{name_key}") from None
     try:
         config = cls.Config(**params)
     except ValidationError as exc:

@@ -1,7 +1,9 @@
-"""The app's boundary: a failure nobody foresaw is one sentence, a crash log and exit code 70.
+"""The app's one boundary (``console.GuadalGroup``): bad input is one sentence and exit code 2; a
+failure nobody foresaw is one sentence, a crash log holding the traceback, and exit code 70.
 
 Faults are injected for real: a planner plugin that raises during a run, and a library function
-replaced by one that raises, in a real `guadal` process each time.
+replaced by one that raises, in a real `guadal` process each time (and once in-process, since the
+boundary is part of the app, not of ``main``).
 """
 
 import json
@@ -11,8 +13,12 @@ import sys
 
 import pytest
 from support import base_mission, run_cli
+from typer.testing import CliRunner
 
-from guadal_cli.app import EXIT_BUG
+from guadal_cli.app import app
+from guadal_cli.console import EXIT_BUG
+from guadal_cli.errors import GuadalError
+from guadal_cli.maps.discretize import DiscretizeOptions
 
 BROKEN_PLANNER = """
 from guadal_cli.planners.greedy import GreedyStd
@@ -74,10 +80,58 @@ def test_an_injected_fault_in_any_command_is_caught_at_the_boundary(state, tmp_p
         timeout=120,
     )
     message = crash_sentence(proc)
-    assert "guadal map failed unexpectedly (KeyError: 'injected')" in message
+    assert "guadal map info failed unexpectedly (KeyError: 'injected')" in message
     logged_traceback(message, "KeyError: 'injected'")
 
 
 def test_bad_input_still_exits_2_not_70(tmp_path):
     proc = run_cli("validate", tmp_path / "absent.yaml")
     assert proc.returncode == 2 and "failed unexpectedly" not in proc.stderr
+
+
+def test_credentials_reach_neither_the_sentence_nor_the_log(tmp_path, write_mission):
+    (tmp_path / "leaky.py").write_text(
+        BROKEN_PLANNER.replace('"the planner divided by zero"', '"lost mqtt://pilot:hunter2@10.0.0.7:1883"')
+    )
+    mission = write_mission(base_mission(algorithm={"type": "leaky:Broken"}))
+    env = {"PYTHONPATH": str(tmp_path), "XDG_STATE_HOME": str(tmp_path / "state")}
+    message = crash_sentence(run_cli("run", mission, "-o", tmp_path / "run", "-q", env=env))
+    assert "mqtt://***@10.0.0.7:1883" in message and "hunter2" not in message
+    path = logged_traceback(message, "ZeroDivisionError: lost mqtt://***@10.0.0.7:1883")
+    assert "hunter2" not in open(path).read()
+
+
+def test_the_boundary_is_part_of_the_app_not_of_main(tmp_path, monkeypatch):
+    import guadal_cli.maps.format as map_format
+
+    def broken(path):
+        raise KeyError("injected")
+
+    monkeypatch.setattr(map_format, "load_map", broken)
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    result = CliRunner().invoke(app, ["map", "info", "x.json"])
+    assert result.exit_code == EXIT_BUG and isinstance(result.exception, SystemExit)
+    assert "guadal map info failed unexpectedly (KeyError: 'injected')" in " ".join(result.stderr.split())
+
+
+def test_bad_input_is_exactly_one_sentence_and_writes_no_log(tmp_path, write_mission):
+    mission = write_mission(base_mission(algorithm={"type": "greedy", "colour": "red"}))
+    proc = run_cli("run", mission, env={"XDG_STATE_HOME": str(tmp_path / "state")})
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"error: {mission}: algorithm.colour: unknown key (allowed: none)."
+    ]
+    assert not (tmp_path / "state").exists()  # a user's mistake is no bug
+
+
+def test_library_errors_name_fields_and_the_cli_names_its_flags(tmp_path):
+    with pytest.raises(GuadalError) as caught:
+        DiscretizeOptions(cell_size_m=-1)
+    assert caught.value.field == "cell_size_m" and "--" not in str(caught.value)
+    grid = tmp_path / "grid.csv"
+    grid.write_text("1,1\n1,1\n")
+    proc = run_cli(
+        "discretize", grid, "--cell-size", "-1", "--bounds", "1,0,1,0", "--output", tmp_path / "m.json"
+    )
+    assert proc.returncode == 2
+    assert "--cell-size must be between 0.1 and 1000 metres (got -1)" in proc.stderr

@@ -86,7 +86,7 @@ CASES = {
     ),
     "unknown level": (
         lambda: mutate(["backend", "level"], "simm"),
-        ["backend.type", "unknown backend 'simm'"],
+        ["backend.level", "unknown backend 'simm'"],
     ),
     "mode not supported": (
         lambda: mutate(["algorithm", "mode"], "target"),

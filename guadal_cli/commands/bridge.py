@@ -8,7 +8,6 @@ from pathlib import Path
 
 import typer
 
-from ..console import fail
 from ..errors import GuadalError
 
 
@@ -110,10 +109,7 @@ def register(app: typer.Typer) -> None:
             "connect_timeout": connect_timeout,
             "arm_retry_interval": arm_retry_interval,
         }
-        try:
-            settings = load_config(config, overrides)
-        except GuadalError as exc:
-            raise fail(exc)
+        settings = load_config(config, overrides)
         logging.basicConfig(
             level=settings.log_level.upper(),
             format=f"%(asctime)s vehicle {settings.vehicle_id} %(levelname)s %(message)s",
@@ -131,14 +127,12 @@ def register(app: typer.Typer) -> None:
             bridge_obj, link = _build(settings)
             running["bridge"] = bridge_obj
             bridge_obj.run()
-        except _Stopped:
+        except (_Stopped, GuadalError) as exc:
             if link is not None:
                 link.close()
-            raise typer.Exit(0)
-        except GuadalError as exc:
-            if link is not None:
-                link.close()
-            raise fail(exc)
+            if isinstance(exc, _Stopped):
+                raise typer.Exit(0) from None
+            raise
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)

@@ -10,7 +10,7 @@ from typing import Annotated
 
 import typer
 
-from ..console import console, fail, print_json, print_table
+from ..console import console, print_json, print_table
 from ..errors import GuadalError
 from ..records import fmt as cell_text
 
@@ -39,7 +39,7 @@ def _url(db: str | None, runs_dir: Path | None = None) -> str:
 
     url = resolve_url(db, runs_dir=runs_dir)
     if url is None:
-        raise fail("the database is turned off (--db none or GUADAL_DB=none); give a database URL.")
+        raise GuadalError("the database is turned off (--db none or GUADAL_DB=none); give a database URL.")
     return url
 
 
@@ -51,10 +51,10 @@ def _migrate(db: str | None, verb: str) -> None:
         engine = make_engine(url)
         before = current_revision(engine)
         after = upgrade(engine)
-    except GuadalError as exc:
-        raise fail(exc)
+    except GuadalError:
+        raise
     except Exception as exc:  # the driver's own errors: unreachable server, unwritable file
-        raise fail(f"cannot {verb} database {redact(url)}: {_first_line(exc)}.")
+        raise GuadalError(f"cannot {verb} database {redact(url)}: {_first_line(exc)}.") from None
     change = "already at" if before == after else f"{before or 'empty'} ->"
     console.print(f"database {redact(url)}: schema {change} {after} (this guadal: {head_revision()})")
 
@@ -77,16 +77,14 @@ def _import(runs: list[Path], db: str | None, as_json: bool, title: str) -> None
     from ..db.engine import ensure_schema, make_engine, redact
     from ..db.ingest import find_run_dirs, import_run
 
+    found = find_run_dirs(runs)
+    url = _url(db, runs_dir=found[0].resolve().parent)
     try:
-        found = find_run_dirs(runs)
-        url = _url(db, runs_dir=found[0].resolve().parent)
         engine = make_engine(url, writer=True)
         ensure_schema(engine)
         done = [import_run(engine, d) for d in found]
-    except GuadalError as exc:
-        raise fail(exc)
     except SQLAlchemyError as exc:
-        raise fail(f"database {redact(url)} refused the rows: {_first_line(exc)}.")
+        raise GuadalError(f"database {redact(url)} refused the rows: {_first_line(exc)}.") from None
     rows = [(str(r.directory.name), r.status, r.rows, r.new_rows, r.uid) for r in done]
     print_table(f"{title} into {redact(url)}", ["run", "status", "rows", "new rows", "uid"], rows, as_json)
 
@@ -114,10 +112,7 @@ def sync(
 def _open(db: str | None):
     from ..db.queries import open_database
 
-    try:
-        return open_database(_url(db))
-    except GuadalError as exc:
-        raise fail(exc)
+    return open_database(_url(db))
 
 
 @app.command("runs")
@@ -138,21 +133,17 @@ def runs(
     """List runs, newest first."""
     from ..db.queries import list_runs
 
-    engine = _open(db)
-    try:
-        found = list_runs(
-            engine,
-            map=map,
-            algorithm=algorithm,
-            environment=environment,
-            level=level,
-            status=status,
-            since=since,
-            until=until,
-            limit=limit,
-        )
-    except GuadalError as exc:
-        raise fail(exc)
+    found = list_runs(
+        _open(db),
+        map=map,
+        algorithm=algorithm,
+        environment=environment,
+        level=level,
+        status=status,
+        since=since,
+        until=until,
+        limit=limit,
+    )
     if as_json:
         print_json(found)
         return
@@ -170,11 +161,7 @@ def export(
     """Write a run from the database as a run directory (CSV) or as Parquet files."""
     from ..db.export import export_run
 
-    engine = _open(db)
-    try:
-        where = export_run(engine, run, output, file_format.lower())
-    except GuadalError as exc:
-        raise fail(exc)
+    where = export_run(_open(db), run, output, file_format.lower())
     console.print(f"run {run} written to {where}")
 
 
@@ -212,12 +199,8 @@ def samples(
     from ..db.queries import samples as query
 
     if file_format.lower() not in ("csv", "geojson"):
-        raise fail(f"samples format '{file_format}' is not known; use csv or geojson.")
-    try:
-        box = parse_bbox(bbox)
-        found = query(_open(db), map, since=since, until=until, bbox=box)
-    except GuadalError as exc:
-        raise fail(exc)
+        raise GuadalError(f"samples format '{file_format}' is not known; use csv or geojson.")
+    found = query(_open(db), map, since=since, until=until, bbox=parse_bbox(bbox))
     out = open(output, "w", newline="", encoding="utf-8") if output else sys.stdout
     try:
         if file_format.lower() == "csv":

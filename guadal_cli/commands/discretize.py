@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from ..console import console, fail, print_json, print_mapping
+from ..console import console, flags, print_json, print_mapping
 from ..errors import GuadalError
 
 _HELP = (
@@ -16,6 +16,15 @@ _HELP = (
     "Water in an image: white in a grey mask, 'index>0.1' in a colour photo (index = (B-R)/(B+R)), "
     "or your own rule with --water-color or --threshold. See docs/discretize.md."
 )
+
+#: DiscretizeOptions' fields, as this command's flags
+_FLAGS = {
+    "cell_size_m": "--cell-size",
+    "min_fraction": "--min-fraction",
+    "supersample": "--supersample",
+    "margin_m": "--margin",
+    "fill_holes_m2": "--fill-holes",
+}
 
 
 def register(app: typer.Typer) -> None:
@@ -90,36 +99,36 @@ def register(app: typer.Typer) -> None:
         from ..maps.sources import open_source
         from ..maps.water_rules import WaterRule
 
-        try:
-            target = _check_output(output)
-            preview_path = None if no_preview else (preview or target.with_suffix(".png"))
-            if preview_path is not None and preview_path.resolve() == target.resolve():
-                raise GuadalError("--preview and --output name the same file; give the preview a .png name.")
-            image_options = tuple(
-                flag
-                for flag, given in (
-                    ("--water-color", water_color),
-                    ("--threshold", threshold),
-                    ("--invert", invert),
-                )
-                if given
+        target = _check_output(output)
+        preview_path = None if no_preview else (preview or target.with_suffix(".png"))
+        if preview_path is not None and preview_path.resolve() == target.resolve():
+            raise GuadalError("--preview and --output name the same file; give the preview a .png name.")
+        image_options = tuple(
+            flag
+            for flag, given in (
+                ("--water-color", water_color),
+                ("--threshold", threshold),
+                ("--invert", invert),
             )
-            if tolerance is not None and not water_color:
-                raise GuadalError(
-                    "--tolerance goes with --water-color (the largest RGB distance from that colour)."
-                )
-            rule = WaterRule.from_options(
-                water_color, 40.0 if tolerance is None else tolerance, threshold, invert
+            if given
+        )
+        if tolerance is not None and not water_color:
+            raise GuadalError(
+                "--tolerance goes with --water-color (the largest RGB distance from that colour)."
             )
-            src = open_source(
-                source,
-                bounds=bounds,
-                rule=rule,
-                water_value=water_value,
-                latlon_grid=latlon_grid,
-                delimiter=delimiter,
-                image_only_options=image_options,
-            )
+        rule = WaterRule.from_options(
+            water_color, 40.0 if tolerance is None else tolerance, threshold, invert
+        )
+        src = open_source(
+            source,
+            bounds=bounds,
+            rule=rule,
+            water_value=water_value,
+            latlon_grid=latlon_grid,
+            delimiter=delimiter,
+            image_only_options=image_options,
+        )
+        with flags(_FLAGS):
             options = DiscretizeOptions(
                 cell_size_m=cell_size,
                 min_fraction=min_fraction,
@@ -129,9 +138,7 @@ def register(app: typer.Typer) -> None:
                 largest_body=largest_body,
             )
             result = discretize(src, options, name=name or target.stem, description=_describe(src, options))
-            _write(result, target, preview_path)
-        except GuadalError as exc:
-            raise fail(exc)
+        _write(result, target, preview_path)
         summary = result.summary()
         summary.update({"output": str(target), "preview": str(preview_path) if preview_path else None})
         if as_json:

@@ -6,10 +6,10 @@ from pathlib import Path
 
 import typer
 
-from ..console import console, fail, print_mapping
+from ..console import GuadalGroup, console, print_mapping
 from ..errors import GuadalError
 
-map_app = typer.Typer(help="Inspect guadal map files.", no_args_is_help=True)
+map_app = typer.Typer(cls=GuadalGroup, help="Inspect guadal map files.", no_args_is_help=True)
 
 
 @map_app.command("info")
@@ -20,10 +20,7 @@ def info(
     """Grid shape, water nodes, cell size, water area and lat/lon bounds."""
     from ..maps.format import load_map
 
-    try:
-        summary = load_map(path).summary()
-    except GuadalError as exc:
-        raise fail(exc)
+    summary = load_map(path).summary()
     print_mapping(f"map {path}", summary, as_json=as_json)
 
 
@@ -39,12 +36,9 @@ def show(
     from ..maps.preview import preview_map
 
     target = output or path.with_suffix(".png")
-    try:
-        if target.resolve() == path.resolve():
-            raise GuadalError("--output names the map file itself; give the preview a .png name.")
-        preview_map(load_map(path), target)
-    except GuadalError as exc:
-        raise fail(exc)
+    if target.resolve() == path.resolve():
+        raise GuadalError("--output names the map file itself; give the preview a .png name.")
+    preview_map(load_map(path), target)
     console.print(f"preview: {target}")
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ..console import console, err_console, fail, print_json, print_mapping
+from ..console import console, err_console, print_json, print_mapping
 from ..errors import GuadalError
 
 # the library (numpy, scipy, networkx) is imported inside each command, so that `guadal --help`
@@ -47,17 +47,14 @@ def register(app: typer.Typer) -> None:
 
         if output is not None:
             if run_dir is not None:
-                raise fail("give the run directory once: --run-dir (--output is its old name).")
+                raise GuadalError("give the run directory once: --run-dir (--output is its old name).")
             err_console.print(
                 "[yellow]note:[/] --output is deprecated for 'guadal run'; it is the run directory itself, "
                 "now named --run-dir.",
                 soft_wrap=True,
             )
             run_dir = output
-        try:
-            runner = MissionRunner(prepare(mission, seed=seed), output=run_dir, database=db)
-        except GuadalError as exc:
-            raise fail(exc)
+        runner = MissionRunner(prepare(mission, seed=seed), output=run_dir, database=db)
         run_with_progress(runner, quiet=quiet, as_json=as_json)
 
     @app.command("validate")
@@ -68,10 +65,7 @@ def register(app: typer.Typer) -> None:
         """Check a mission completely (schema, plugins, map, positions) without running it."""
         from ..mission import prepare
 
-        try:
-            prep = prepare(mission)
-        except GuadalError as exc:
-            raise fail(exc)
+        prep = prepare(mission)
         summary = {
             "mission": prep.mission.name,
             "environment": prep.mission.environment.type,
@@ -123,9 +117,7 @@ def run_with_progress(runner, quiet: bool, as_json: bool) -> None:
                 f"[yellow]interrupted[/]: partial results kept in {runner.output} "
                 f"(go on with: guadal resume {runner.output})"
             )
-        raise typer.Exit(130)
-    except GuadalError as exc:
-        raise fail(exc)
+        raise typer.Exit(130) from None
     if as_json:
         print_json(
             {

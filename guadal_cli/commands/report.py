@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from ..console import console, err_console, fail, print_json
+from ..console import console, err_console, print_json
 
 
 def register(app: typer.Typer) -> None:
@@ -74,7 +74,7 @@ def register(app: typer.Typer) -> None:
         from ..sweep.summary import sweep_runs
 
         if sum((as_csv, as_json, as_markdown)) > 1:
-            raise fail("choose one of --csv, --json and --markdown.")
+            raise GuadalError("choose one of --csv, --json and --markdown.")
         options = Options(
             group_by=[f.strip() for f in (group_by or "").split(",") if f.strip()],
             x_axis=x_axis,
@@ -85,9 +85,8 @@ def register(app: typer.Typer) -> None:
         )
         quiet = as_csv or as_json or as_markdown
         if bool(runs) == bool(db):
-            raise fail("give run directories or --db URL (with --where filters), one of the two.")
-        exported = ExitStack()  # with --db: the matching runs, exported to a folder the report reads
-        try:
+            raise GuadalError("give run directories or --db URL (with --where filters), one of the two.")
+        with ExitStack() as exported:  # with --db: the matching runs, exported to a folder the report reads
             if db:
                 runs = [exported.enter_context(runs_from_database(db, where or []))]
             swept = sweep_runs(runs)  # a sweep directory: its runs, grouped by its axes
@@ -105,10 +104,6 @@ def register(app: typer.Typer) -> None:
                             status.update(f"writing report: {what}")
 
                     write(result, output, options, on_file)
-        except GuadalError as exc:
-            raise fail(exc)
-        finally:
-            exported.close()
         for warning in result.warnings:
             err_console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
         if as_json:

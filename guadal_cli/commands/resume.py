@@ -7,8 +7,6 @@ from typing import Annotated
 
 import typer
 
-from ..console import fail
-from ..errors import GuadalError
 from .mission import run_with_progress
 
 
@@ -25,10 +23,7 @@ def resume(
     from ..resume import prepare_resume
     from ..runner import MissionRunner
 
-    try:
-        runner = MissionRunner(prepare_resume(run_dir), output=run_dir, resume=True)
-    except GuadalError as exc:
-        raise fail(exc)
+    runner = MissionRunner(prepare_resume(run_dir), output=run_dir, resume=True)
     run_with_progress(runner, quiet=quiet, as_json=as_json)
 
 

@@ -8,7 +8,6 @@ import sys
 
 import typer
 
-from ..console import fail
 from ..errors import GuadalError
 
 
@@ -118,50 +117,47 @@ def sitl(
     early_stop: list[int] = []
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda signum, _frame: early_stop.append(signum))
-    try:
-        if instance is not None:
-            if not 0 <= instance <= (65535 - 5760) // 10 - vehicles:
-                raise GuadalError(f"-I {instance} must be an instance number from 0 (ports 5760+10*I).")
-            base_port = 5760 + 10 * instance
-        from ..sitl.params import MODELS, read_param_files
+    if instance is not None:
+        if not 0 <= instance <= (65535 - 5760) // 10 - vehicles:
+            raise GuadalError(f"-I {instance} must be an instance number from 0 (ports 5760+10*I).")
+        base_port = 5760 + 10 * instance
+    from ..sitl.params import MODELS, read_param_files
 
-        if model not in MODELS:
-            raise GuadalError(f"--model {model!r} is not one of {', '.join(MODELS)}.")
-        param_defaults = {"FRAME_CLASS": float(MODELS[model])}
-        param_defaults.update(read_param_files([p for p in (defaults or "").split(",") if p.strip()]))
-        fields = dict(
-            vehicles=vehicles,
-            home=_latlon(home, "--home"),
-            homes=[_latlon(part.strip(), "--homes") for part in homes.split(";") if part.strip()]
-            if homes
-            else None,
-            speedup=speedup,
-            base_port=base_port,
-            host=host,
-            max_speed=max_speed,
-            gps_noise_m=gps_noise,
-            current_en=_pair(current, "--current"),
-            udp_out=_host_port(udp_out) if udp_out else None,
-            serial=list(serial or []),
-            baud=baud,
-            seed=seed,
-            max_rate=max_rate,
-            sysid=sysid,
-            track_rate=track_rate,
-            param_defaults=param_defaults,
-        )
-        if gps_noise < 0:
-            raise GuadalError(f"--gps-noise must be zero or positive (got {gps_noise}).")
-        from ..sitl.server import (  # after the cheap checks: pymavlink is slow to import
-            SitlOptions,
-            SitlServer,
-            stats,
-        )
+    if model not in MODELS:
+        raise GuadalError(f"--model {model!r} is not one of {', '.join(MODELS)}.")
+    param_defaults = {"FRAME_CLASS": float(MODELS[model])}
+    param_defaults.update(read_param_files([p for p in (defaults or "").split(",") if p.strip()]))
+    fields = dict(
+        vehicles=vehicles,
+        home=_latlon(home, "--home"),
+        homes=[_latlon(part.strip(), "--homes") for part in homes.split(";") if part.strip()]
+        if homes
+        else None,
+        speedup=speedup,
+        base_port=base_port,
+        host=host,
+        max_speed=max_speed,
+        gps_noise_m=gps_noise,
+        current_en=_pair(current, "--current"),
+        udp_out=_host_port(udp_out) if udp_out else None,
+        serial=list(serial or []),
+        baud=baud,
+        seed=seed,
+        max_rate=max_rate,
+        sysid=sysid,
+        track_rate=track_rate,
+        param_defaults=param_defaults,
+    )
+    if gps_noise < 0:
+        raise GuadalError(f"--gps-noise must be zero or positive (got {gps_noise}).")
+    from ..sitl.server import (  # after the cheap checks: pymavlink is slow to import
+        SitlOptions,
+        SitlServer,
+        stats,
+    )
 
-        server = SitlServer(SitlOptions(**fields))
-        ready = server.open()
-    except GuadalError as exc:
-        raise fail(exc)
+    server = SitlServer(SitlOptions(**fields))
+    ready = server.open()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: server.request_stop())
     if early_stop:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from ..console import console, fail, print_json, print_table
+from ..console import console, print_json, print_table
 from ..errors import GuadalError
 
 _STATE_HELP = "Folder of the stack's state file and logs (default: ~/.local/state/guadal/stack)."
@@ -78,41 +78,36 @@ def register(app: typer.Typer) -> None:
         """Start the stack in the background and print the broker URL once every bridge is online."""
         from ..stack import AUTOPILOTS, Autopilot, stack_up
 
-        try:
-            if not map_path.is_file():
-                raise GuadalError(f"--map: map file '{map_path}' does not exist.")
-            if autopilot not in AUTOPILOTS:
-                raise GuadalError(f"--autopilot must be one of {', '.join(AUTOPILOTS)} (got '{autopilot}').")
-            if autopilot == "ardupilot" and binary is None:
-                raise GuadalError(
-                    "--autopilot ardupilot needs --binary, the path of ArduPilot's SITL ardurover."
-                )
-            bridge_args = list(bridge_arg or []) + (["--sensor", sensor] if sensor else [])
-            emulator_args = list(emulator_arg or [])
-            if autopilot == "guadal":
-                emulator_args = ["--max-speed", f"{speed:g}", *emulator_args]
-            stack = stack_up(
-                map_path=map_path,
-                vehicles=vehicles,
-                speedup=speedup,
-                broker_port=broker_port,
-                state_dir=state_dir,
-                fleet=fleet,
-                broker_kind=broker,
-                failsafe_timeout=failsafe_timeout,
-                autopilot=Autopilot(
-                    kind=autopilot,
-                    binary=str(binary) if binary else None,
-                    defaults=[str(p) for p in defaults or []],
-                    mavproxy=mavproxy,
-                    speed=speed,
-                    track_rate=track_rate,
-                ),
-                emulator_args=emulator_args,
-                bridge_args=bridge_args,
-            )
-        except GuadalError as exc:
-            raise fail(exc)
+        if not map_path.is_file():
+            raise GuadalError(f"--map: map file '{map_path}' does not exist.")
+        if autopilot not in AUTOPILOTS:
+            raise GuadalError(f"--autopilot must be one of {', '.join(AUTOPILOTS)} (got '{autopilot}').")
+        if autopilot == "ardupilot" and binary is None:
+            raise GuadalError("--autopilot ardupilot needs --binary, the path of ArduPilot's SITL ardurover.")
+        bridge_args = list(bridge_arg or []) + (["--sensor", sensor] if sensor else [])
+        emulator_args = list(emulator_arg or [])
+        if autopilot == "guadal":
+            emulator_args = ["--max-speed", f"{speed:g}", *emulator_args]
+        stack = stack_up(
+            map_path=map_path,
+            vehicles=vehicles,
+            speedup=speedup,
+            broker_port=broker_port,
+            state_dir=state_dir,
+            fleet=fleet,
+            broker_kind=broker,
+            failsafe_timeout=failsafe_timeout,
+            autopilot=Autopilot(
+                kind=autopilot,
+                binary=str(binary) if binary else None,
+                defaults=[str(p) for p in defaults or []],
+                mavproxy=mavproxy,
+                speed=speed,
+                track_rate=track_rate,
+            ),
+            emulator_args=emulator_args,
+            bridge_args=bridge_args,
+        )
         if as_json:
             print_json({**stack.info, "state_dir": str(stack.state_dir), "pids": stack.pids()})
             return
@@ -131,10 +126,7 @@ def register(app: typer.Typer) -> None:
         """Stop every process of the stack (SIGTERM, then SIGKILL after the grace period)."""
         from ..stack import stack_down
 
-        try:
-            stack = stack_down(state_dir, grace)
-        except GuadalError as exc:
-            raise fail(exc)
+        stack = stack_down(state_dir, grace)
         if stack is None:
             console.print("no stack is recorded there; nothing to stop.")
         else:
@@ -148,11 +140,8 @@ def register(app: typer.Typer) -> None:
         """The recorded stack's processes and whether each is alive."""
         from ..stack import Stack, default_state_dir
 
-        try:
-            stack = Stack.load(state_dir or default_state_dir())
-        except GuadalError as exc:
-            raise fail(exc)
+        stack = Stack.load(state_dir or default_state_dir())
         if stack is None:
-            raise fail(GuadalError("no stack is recorded there; start one with 'guadal stack up'."))
+            raise GuadalError("no stack is recorded there; start one with 'guadal stack up'.")
         rows = [(p.name, p.pid, "alive" if p.alive() else "stopped", p.log) for p in stack.processes]
         print_table(f"stack at {stack.broker_url}", ["process", "pid", "state", "log"], rows, as_json=as_json)

@@ -11,13 +11,12 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from typer.core import TyperGroup
 
-from ..console import console, err_console, fail, print_json, print_mapping, print_table
+from ..console import GuadalGroup, console, err_console, print_json, print_mapping, print_table
 from ..errors import GuadalError
 
 
-class _RunByDefault(TyperGroup):
+class _RunByDefault(GuadalGroup):
     """``guadal sweep FILE ...`` runs FILE: a first word that is no sub-command means ``run``."""
 
     def parse_args(self, ctx, args):
@@ -47,11 +46,8 @@ def _plan(sweep_file: Path):
 @app.command("validate")
 def validate(sweep_file: SweepFileArg, as_json: JsonOpt = False) -> None:
     """Check every combination (schema, plugins, maps, start positions) and count the missions."""
-    try:
-        with err_console.status("checking every combination", spinner="dots"):
-            plan = _plan(sweep_file)
-    except GuadalError as exc:
-        raise fail(exc)
+    with err_console.status("checking every combination", spinner="dots"):
+        plan = _plan(sweep_file)
     sweep = plan.sweep
     levels = sorted({c.level for c in plan.combinations})
     summary = {
@@ -114,9 +110,9 @@ def run(
         if executor is not None:
             executor.stop([])
         if isinstance(exc, GuadalError):
-            raise fail(exc)
+            raise  # the app's error boundary says it
         err_console.print("[yellow]interrupted[/] while checking the sweep; nothing was run.")
-        raise typer.Exit(130)
+        raise typer.Exit(130) from None
     show = not (quiet or as_json)
     before = manifest.counts()
     if show:
@@ -148,17 +144,15 @@ def run(
             f"[yellow]interrupted[/]: {counts['complete']} of {len(plan)} complete, kept in {sweep.output}; "
             "run the same command again to continue."
         )
-        raise typer.Exit(130)
+        raise typer.Exit(130) from None
     finally:
         signal.signal(signal.SIGTERM, previous_term)
         executor.close()
     try:
         report = summarize(sweep.output) if counts["complete"] else None
-    except GuadalError as exc:
-        raise fail(exc)
     except KeyboardInterrupt:
         err_console.print("[yellow]interrupted[/] while writing the summary; every mission is in sweep.json.")
-        raise typer.Exit(130)
+        raise typer.Exit(130) from None
     failed = [e for e in manifest.entries.values() if e["status"] == "failed"]
     if as_json:
         print_json(

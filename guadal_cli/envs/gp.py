@@ -75,7 +75,10 @@ class GPEnvironment(Environment):
         self._truth_plugin = None
         if config.ground_truth is not None:
             cls, cfg = plugins.build_config("ground_truth", config.ground_truth, "environment.ground_truth")
-            self._truth_plugin = cls(cfg)
+            try:
+                self._truth_plugin = cls(cfg)
+            except GuadalError as exc:
+                raise exc.within("environment.ground_truth") from None
         self.model: IncrementalGP | LocalGP = self._exact_model()
         self._local_since: int | None = None  # the sample from which the local GP took over
         self._truth: np.ndarray | None = None
@@ -107,14 +110,15 @@ class GPEnvironment(Environment):
 
     def reset(self, seed: int) -> None:
         truth_seq, noise_seq = np.random.SeedSequence(seed).spawn(2)
-        self._truth = (
-            None
-            if self._truth_plugin is None
-            else np.asarray(
-                self._truth_plugin.generate(self.graph, np.random.default_rng(truth_seq), self.base_dir),
-                float,
-            )
-        )
+        self._truth = None
+        if self._truth_plugin is not None:
+            try:
+                truth = self._truth_plugin.generate(
+                    self.graph, np.random.default_rng(truth_seq), self.base_dir
+                )
+            except GuadalError as exc:
+                raise exc.within("environment.ground_truth") from None
+            self._truth = np.asarray(truth, float)
         self._noise_rng = np.random.default_rng(noise_seq)
         self._local_since = 0 if self.config.model.type == "local" else None
         self.model = self._local_model() if self._local_since == 0 else self._exact_model()

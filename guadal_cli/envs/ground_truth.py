@@ -38,7 +38,7 @@ class ShekelField:
 
     def __init__(self, config: ShekelField.Config):
         if config.max_width < config.min_width:
-            raise GuadalError("environment.ground_truth.max_width must be at least min_width.")
+            raise GuadalError("must be at least min_width.", field="max_width")
         self.config = config
 
     def generate(self, graph: NavGraph, rng: np.random.Generator, base_dir=None) -> np.ndarray:
@@ -126,22 +126,19 @@ class FileField:
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
         if not path.is_file():
-            raise GuadalError(f"environment.ground_truth.path: file '{path}' does not exist.")
+            raise GuadalError(f"file '{path}' does not exist.", field="path")
         text = path.read_text()
         delimiter = "," if "," in text else None
         try:
             grid = np.genfromtxt(path, delimiter=delimiter, dtype=float)
         except ValueError as exc:
-            raise GuadalError(
-                f"environment.ground_truth.path: '{path}' is not a grid of numbers ({exc})."
-            ) from exc
+            raise GuadalError(f"'{path}' is not a grid of numbers ({exc}).", field="path") from exc
         if grid.shape != graph.map.shape:
             raise GuadalError(
-                f"environment.ground_truth.path: '{path}' has shape {grid.shape}, the map is {graph.map.shape}; they must match."
+                f"'{path}' has shape {grid.shape}, the map is {graph.map.shape}; they must match.",
+                field="path",
             )
         values = grid[graph.rows, graph.cols]
         if not np.all(np.isfinite(values)):
-            raise GuadalError(
-                f"environment.ground_truth.path: '{path}' has non-numeric values on water cells."
-            )
+            raise GuadalError(f"'{path}' has non-numeric values on water cells.", field="path")
         return _normalise(values) if self.config.normalise else values

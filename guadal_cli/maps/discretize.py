@@ -44,22 +44,27 @@ class DiscretizeOptions:
     fill_holes_m2: float | None = None  # None: half a cell
     largest_body: bool = False
 
+    def __post_init__(self) -> None:
+        self.check()  # refuse impossible options where they are made
+
     def check(self) -> None:
         if self.cell_size_m is not None and not MIN_CELL_SIZE_M <= self.cell_size_m <= MAX_CELL_SIZE_M:
             raise GuadalError(
-                f"--cell-size must be between {MIN_CELL_SIZE_M:g} and {MAX_CELL_SIZE_M:g} metres (got {self.cell_size_m:g})."
+                f"must be between {MIN_CELL_SIZE_M:g} and {MAX_CELL_SIZE_M:g} metres (got {self.cell_size_m:g}).",
+                field="cell_size_m",
             )
         if not (0 < self.min_fraction <= 1):
-            raise GuadalError(f"--min-fraction must be in (0, 1] (got {self.min_fraction:g}).")
+            raise GuadalError(f"must be in (0, 1] (got {self.min_fraction:g}).", field="min_fraction")
         if not (1 <= self.supersample <= 32):
             raise GuadalError(
-                f"--supersample must be between 1 and 32 samples per cell side (got {self.supersample})."
+                f"must be between 1 and 32 samples per cell side (got {self.supersample}).",
+                field="supersample",
             )
         if not self.margin_m >= 0:
-            raise GuadalError(f"--margin must be zero or more metres (got {self.margin_m:g}).")
+            raise GuadalError(f"must be zero or more metres (got {self.margin_m:g}).", field="margin_m")
         if self.fill_holes_m2 is not None and not self.fill_holes_m2 >= 0:
             raise GuadalError(
-                f"--fill-holes must be zero or more square metres (got {self.fill_holes_m2:g})."
+                f"must be zero or more square metres (got {self.fill_holes_m2:g}).", field="fill_holes_m2"
             )
 
 
@@ -101,8 +106,9 @@ def _grid_for(source, cell: float) -> tuple[int, int, dict]:
     rows = int(math.ceil(float(y_n - y_s) / cell - 1e-3)) + 2
     if rows * cols > MAX_CELLS:
         raise GuadalError(
-            f"a cell size of {cell:g} m over {float(x_e - x_w):.0f} x {float(y_n - y_s):.0f} m of water makes a "
-            f"{rows}x{cols} grid (more than {MAX_CELLS:,} cells); choose a larger --cell-size."
+            f"{cell:g} m over {float(x_e - x_w):.0f} x {float(y_n - y_s):.0f} m of water makes a "
+            f"{rows}x{cols} grid (more than {MAX_CELLS:,} cells); choose a larger cell size.",
+            field="cell_size_m",
         )
     ref_row, ref_col = rows // 2, cols // 2
     # the grid is centred on the water; the reference cell's centre is the map's origin
@@ -165,14 +171,16 @@ def discretize(source, options: DiscretizeOptions, name: str = "", description: 
     cell = options.cell_size_m if options.cell_size_m is not None else source.default_cell_size_m
     if cell is None:
         raise GuadalError(
-            f"--cell-size is required for a {source.kind} (the size of the map's square cells, in metres)."
+            f"is required for a {source.kind} (the size of the map's square cells, in metres).",
+            field="cell_size_m",
         )
     cell = float(cell)
     water_m2 = float(source.water_area_m2)
     if water_m2 < cell**2:
         raise GuadalError(
-            f"the cell size ({cell:g} m, {cell**2:,.0f} m² per cell) is larger than the lake: '{source.path.name}' "
-            f"holds {water_m2:,.0f} m² of water; choose a smaller --cell-size."
+            f"{cell:g} m ({cell**2:,.0f} m² per cell) is larger than the lake: '{source.path.name}' "
+            f"holds {water_m2:,.0f} m² of water; choose a smaller cell size.",
+            field="cell_size_m",
         )
     rows, cols, reference = _grid_for(source, cell)
     if options.cell_size_m is None and getattr(source, "regular", False):

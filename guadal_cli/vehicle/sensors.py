@@ -71,7 +71,7 @@ class SyntheticSensor:
         try:
             self.values = field.generate(context.graph, np.random.default_rng(0))
         except GuadalError as exc:
-            raise GuadalError(str(exc).replace("environment.ground_truth.path", "sensor synthetic")) from exc
+            raise exc.within("sensor") from None
         self.rng = np.random.default_rng(config.seed)
 
     def read(self, lat: float, lon: float) -> float:

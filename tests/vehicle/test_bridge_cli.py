@@ -44,7 +44,7 @@ def test_bad_settings_get_one_sentence(run, tmp_path, lake):
         (base + ["--map", map_path, "--sensor", "synthetik:x.csv"], "Did you mean 'synthetic'?"),
         (
             base + ["--map", map_path, "--sensor", "synthetic:" + str(tmp_path / "t.csv")],
-            "sensor synthetic: file",
+            "sensor.path: file",
         ),
         (["--mavlink", "udpin:127.0.0.1:0", "--map", map_path], "vehicle_id: required, but missing."),
         (base + ["--map", map_path, "--failsafe-timeout", "-1"], "failsafe_timeout: must be greater than 0"),

@@ -64,7 +64,7 @@ def test_synthetic_noise_is_seeded(tmp_path, graph):
 
 def test_synthetic_grid_of_the_wrong_shape_is_named(tmp_path, graph):
     write_grid(tmp_path / "t.csv", [[1, 2], [3, 4]])
-    with pytest.raises(GuadalError, match=r"sensor synthetic: .* has shape \(2, 2\), the map is \(3, 4\)"):
+    with pytest.raises(GuadalError, match=r"sensor.path: .* has shape \(2, 2\), the map is \(3, 4\)"):
         build_sensor({"type": "synthetic", "path": str(tmp_path / "t.csv")}, SensorContext(graph))
 
 
