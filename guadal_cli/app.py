@@ -1,4 +1,4 @@
-"""The ``guadal`` command line: a typer app assembled from ``commands/``.
+"""The ``guadal`` command line: one typer app assembled from the module-level apps in ``commands/``.
 
 Its error boundary (:class:`~guadal_cli.console.GuadalGroup`) turns every exception into one
 sentence and an exit code; see ``guadal_cli.console`` for the codes.
@@ -6,21 +6,28 @@ sentence and an exit code; see ``guadal_cli.console`` for the codes.
 
 from __future__ import annotations
 
+import importlib
+from typing import Annotated
+
 import typer
 
 from . import __version__
-from .commands import bridge as bridge_cmd
-from .commands import db as db_cmd
-from .commands import discretize as discretize_cmd
-from .commands import map as map_cmd
-from .commands import mission as mission_cmd
-from .commands import plugins as plugins_cmd
-from .commands import report as report_cmd
-from .commands import resume as resume_cmd
-from .commands import sitl as sitl_cmd
-from .commands import stack as stack_cmd
-from .commands import sweep as sweep_cmd
 from .console import GuadalGroup
+
+#: ``commands/<name>.py`` modules, in the order ``guadal --help`` lists them; each defines ``app``
+COMMANDS = (
+    "mission",
+    "resume",
+    "plugins",
+    "map",
+    "sitl",
+    "bridge",
+    "stack",
+    "discretize",
+    "report",
+    "sweep",
+    "db",
+)
 
 app = typer.Typer(
     cls=GuadalGroup,
@@ -40,24 +47,16 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _root(
-    version: bool | None = typer.Option(
-        None, "--version", callback=_version, is_eager=True, help="Show the version."
-    ),
+    version: Annotated[
+        bool | None, typer.Option("--version", callback=_version, is_eager=True, help="Show the version.")
+    ] = None,
 ) -> None:
     """guadal: run, validate and compare IPP missions."""
 
 
-mission_cmd.register(app)
-resume_cmd.register(app)
-plugins_cmd.register(app)
-map_cmd.register(app)
-sitl_cmd.register(app)
-bridge_cmd.register(app)
-stack_cmd.register(app)
-discretize_cmd.register(app)
-report_cmd.register(app)
-app.add_typer(sweep_cmd.app, name="sweep")
-app.add_typer(db_cmd.app, name="db")
+# a verb's app holds its command(s), merged here; a noun's app (map, stack) is a group of its own
+for name in COMMANDS:
+    app.add_typer(importlib.import_module(f".commands.{name}", __package__).app)
 
 
 def main() -> None:

@@ -135,11 +135,6 @@ def _guadal(*args: str) -> list[str]:
     return [sys.executable, "-m", "guadal_cli", *args]
 
 
-def _emulator(*args: str) -> list[str]:
-    """``guadal sitl`` without loading the rest of the CLI: it starts faster."""
-    return [sys.executable, "-m", "guadal_cli.sitl", *args]
-
-
 @dataclass
 class Autopilot:
     """Which program flies each boat: guadal's emulator (one process) or ArduPilot's SITL
@@ -367,7 +362,8 @@ class Stack:
         fmt = lambda h: f"{h[0]:.8f},{h[1]:.8f}"  # noqa: E731
         emulator = self._spawn(
             "emulator",
-            _emulator(
+            _guadal(
+                "sitl",
                 "--vehicles",
                 str(len(homes)),
                 "--home",

@@ -10,11 +10,13 @@ from typing import Annotated
 
 import typer
 
-from ..console import console, print_json, print_table
+from ..console import GuadalGroup, console, print_json, print_table
 from ..errors import GuadalError
 from ..records import fmt as cell_text
 
 app = typer.Typer(
+    name="db",
+    cls=GuadalGroup,
     help="The mission database: every run, step, sample and GPS fix (SQLite beside the runs, or PostgreSQL).",
     no_args_is_help=True,
 )

@@ -3,33 +3,35 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
 from ..console import GuadalGroup, console, print_mapping
 from ..errors import GuadalError
 
-map_app = typer.Typer(cls=GuadalGroup, help="Inspect guadal map files.", no_args_is_help=True)
+app = typer.Typer(name="map", cls=GuadalGroup, help="Inspect guadal map files.", no_args_is_help=True)
+
+MapFile = Annotated[Path, typer.Argument(help="A guadal map file.")]
 
 
-@map_app.command("info")
+@app.command("info")
 def info(
-    path: Path = typer.Argument(..., help="A guadal map file."),
-    as_json: bool = typer.Option(False, "--json", help="Machine-readable output."),
+    path: MapFile,
+    as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
 ) -> None:
     """Grid shape, water nodes, cell size, water area and lat/lon bounds."""
     from ..maps.format import load_map
 
-    summary = load_map(path).summary()
-    print_mapping(f"map {path}", summary, as_json=as_json)
+    print_mapping(f"map {path}", load_map(path).summary(), as_json=as_json)
 
 
-@map_app.command("show")
+@app.command("show")
 def show(
-    path: Path = typer.Argument(..., help="A guadal map file."),
-    output: Path | None = typer.Option(
-        None, "--output", "-o", help="PNG to write (default: the map's name with .png)."
-    ),
+    path: MapFile,
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="PNG to write (default: the map's name with .png).")
+    ] = None,
 ) -> None:
     """Write a PNG preview of a map: water cells, cell outlines and node centres on lat/lon axes."""
     from ..maps.format import load_map
@@ -40,7 +42,3 @@ def show(
         raise GuadalError("--output names the map file itself; give the preview a .png name.")
     preview_map(load_map(path), target)
     console.print(f"preview: {target}")
-
-
-def register(app: typer.Typer) -> None:
-    app.add_typer(map_app, name="map")

@@ -5,119 +5,121 @@ from __future__ import annotations
 import sys
 from contextlib import ExitStack, contextmanager, nullcontext
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
 from ..console import console, err_console, print_json
 
+app = typer.Typer()
 
-def register(app: typer.Typer) -> None:
-    @app.command("report")
-    def report(
-        runs: list[Path] = typer.Argument(None, help="Run directories, or folders that contain them."),
-        output: Path | None = typer.Option(
-            None,
+
+@app.command("report")
+def report(
+    runs: Annotated[
+        list[Path] | None, typer.Argument(help="Run directories, or folders that contain them.")
+    ] = None,
+    output: Annotated[
+        Path | None,
+        typer.Option(
             "--output",
             "-o",
             help="Folder for the HTML page, figures, animations and geo files; without it only the tables are printed.",
         ),
-        group_by: str | None = typer.Option(
-            None,
+    ] = None,
+    group_by: Annotated[
+        str | None,
+        typer.Option(
             "--group-by",
             "-g",
             help="Comma-separated 'map', 'level' or dotted fields of the resolved mission to group by "
             "(default: map,level,algorithm.type, or a sweep directory's axes; runs on different maps are "
             "averaged only when asked).",
         ),
-        x_axis: str = typer.Option(
-            "distance",
-            "--x",
-            help="Metric curves against 'distance' (fleet metres) or 'time' (mission seconds).",
+    ] = None,
+    x_axis: Annotated[
+        str,
+        typer.Option(
+            "--x", help="Metric curves against 'distance' (fleet metres) or 'time' (mission seconds)."
         ),
-        metrics: str | None = typer.Option(
-            None,
-            "--metrics",
-            help="Comma-separated metrics to plot (default: coverage and every task metric).",
-        ),
-        animate: str = typer.Option(
-            "gif",
-            "--animate",
-            help="Step-by-step animations: gif, mp4 (needs ffmpeg) or none.",
-        ),
-        animate_runs: str = typer.Option(
-            "all",
-            "--animate-runs",
-            help="Which runs to animate: all, first (of each group) or comma-separated run names.",
-        ),
-        frames: int = typer.Option(
-            120, "--frames", help="At most this many animation frames (steps are subsampled)."
-        ),
-        as_csv: bool = typer.Option(
-            False, "--csv", help="Print the tables as CSV (runs, a blank line, groups)."
-        ),
-        as_json: bool = typer.Option(False, "--json", help="Print the tables as JSON."),
-        as_markdown: bool = typer.Option(False, "--markdown", help="Print the tables as Markdown."),
-        db: str | None = typer.Option(
-            None, "--db", help="Compare runs from this database (URL) instead of run directories."
-        ),
-        where: list[str] = typer.Option(
-            None,
-            "--where",
-            help="With --db: KEY=VALUE filter (algorithm, level, map, status, ...); repeatable.",
-        ),
-    ) -> None:
-        """Compare runs: per-run and per-group tables; with --output also figures, animations, GeoJSON/KML, ground-station plans and one HTML page."""
-        from ..errors import GuadalError
-        from ..report import tables
-        from ..report.build import DEFAULT_GROUP_BY, Options, build, write
-        from ..report.runs import find_runs
-        from ..sweep.summary import sweep_runs
+    ] = "distance",
+    metrics: Annotated[
+        str | None,
+        typer.Option(help="Comma-separated metrics to plot (default: coverage and every task metric)."),
+    ] = None,
+    animate: Annotated[
+        str, typer.Option(help="Step-by-step animations: gif, mp4 (needs ffmpeg) or none.")
+    ] = "gif",
+    animate_runs: Annotated[
+        str,
+        typer.Option(help="Which runs to animate: all, first (of each group) or comma-separated run names."),
+    ] = "all",
+    frames: Annotated[
+        int, typer.Option(help="At most this many animation frames (steps are subsampled).")
+    ] = 120,
+    as_csv: Annotated[
+        bool, typer.Option("--csv", help="Print the tables as CSV (runs, a blank line, groups).")
+    ] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the tables as JSON.")] = False,
+    as_markdown: Annotated[bool, typer.Option("--markdown", help="Print the tables as Markdown.")] = False,
+    db: Annotated[
+        str | None, typer.Option(help="Compare runs from this database (URL) instead of run directories.")
+    ] = None,
+    where: Annotated[
+        list[str] | None,
+        typer.Option(help="With --db: KEY=VALUE filter (algorithm, level, map, status, ...); repeatable."),
+    ] = None,
+) -> None:
+    """Compare runs: per-run and per-group tables; with --output also figures, animations, GeoJSON/KML, ground-station plans and one HTML page."""
+    from ..errors import GuadalError
+    from ..report import tables
+    from ..report.build import DEFAULT_GROUP_BY, Options, build, write
+    from ..report.runs import find_runs
+    from ..sweep.summary import sweep_runs
 
-        if sum((as_csv, as_json, as_markdown)) > 1:
-            raise GuadalError("choose one of --csv, --json and --markdown.")
-        options = Options(
-            group_by=[f.strip() for f in (group_by or "").split(",") if f.strip()],
-            x_axis=x_axis,
-            metrics=[m.strip() for m in metrics.split(",") if m.strip()] if metrics else None,
-            animate=None if animate.lower() == "none" else animate.lower(),
-            max_frames=frames,
-            animate_runs=animate_runs,
-        )
-        quiet = as_csv or as_json or as_markdown
-        if bool(runs) == bool(db):
-            raise GuadalError("give run directories or --db URL (with --where filters), one of the two.")
-        with ExitStack() as exported:  # with --db: the matching runs, exported to a folder the report reads
-            if db:
-                runs = [exported.enter_context(runs_from_database(db, where or []))]
-            swept = sweep_runs(runs)  # a sweep directory: its runs, grouped by its axes
-            found = swept[0] if swept else find_runs(runs)
-            if group_by is None:
-                options.group_by = (swept[1] if swept else None) or list(DEFAULT_GROUP_BY)
-            result = build(found, options)
-            if output is not None:
-                with (
-                    console.status("writing report", spinner="dots") if not quiet else nullcontext() as status
-                ):
+    if sum((as_csv, as_json, as_markdown)) > 1:
+        raise GuadalError("choose one of --csv, --json and --markdown.")
+    options = Options(
+        group_by=[f.strip() for f in (group_by or "").split(",") if f.strip()],
+        x_axis=x_axis,
+        metrics=[m.strip() for m in metrics.split(",") if m.strip()] if metrics else None,
+        animate=None if animate.lower() == "none" else animate.lower(),
+        max_frames=frames,
+        animate_runs=animate_runs,
+    )
+    quiet = as_csv or as_json or as_markdown
+    if bool(runs) == bool(db):
+        raise GuadalError("give run directories or --db URL (with --where filters), one of the two.")
+    with ExitStack() as exported:  # with --db: the matching runs, exported to a folder the report reads
+        if db:
+            runs = [exported.enter_context(runs_from_database(db, where or []))]
+        swept = sweep_runs(runs)  # a sweep directory: its runs, grouped by its axes
+        found = swept[0] if swept else find_runs(runs)
+        if group_by is None:
+            options.group_by = (swept[1] if swept else None) or list(DEFAULT_GROUP_BY)
+        result = build(found, options)
+        if output is not None:
+            with console.status("writing report", spinner="dots") if not quiet else nullcontext() as status:
 
-                    def on_file(what: str) -> None:
-                        if status is not None:
-                            status.update(f"writing report: {what}")
+                def on_file(what: str) -> None:
+                    if status is not None:
+                        status.update(f"writing report: {what}")
 
-                    write(result, output, options, on_file)
-        for warning in result.warnings:
-            err_console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
-        if as_json:
-            print_json(result.as_json())
-        elif as_csv:
-            sys.stdout.write(tables.to_csv(result.run_columns, result.run_rows) + "\n")
-            sys.stdout.write(tables.to_csv(result.group_columns, result.group_rows))
-        elif as_markdown:
-            sys.stdout.write(result.markdown())
-        else:
-            for title, columns, rows in result.display_tables():
-                _show(title, columns, rows, drop_constant=("map", "level", "vehicles"))
-            if output is not None:
-                console.print(f"report: {output / 'report.html'}")
+                write(result, output, options, on_file)
+    for warning in result.warnings:
+        err_console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
+    if as_json:
+        print_json(result.as_json())
+    elif as_csv:
+        sys.stdout.write(tables.to_csv(result.run_columns, result.run_rows) + "\n")
+        sys.stdout.write(tables.to_csv(result.group_columns, result.group_rows))
+    elif as_markdown:
+        sys.stdout.write(result.markdown())
+    else:
+        for title, columns, rows in result.display_tables():
+            _show(title, columns, rows, drop_constant=("map", "level", "vehicles"))
+        if output is not None:
+            console.print(f"report: {output / 'report.html'}")
 
 
 #: shorter headers where the terminal is narrow; files and --csv/--json keep the CSV names

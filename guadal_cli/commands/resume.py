@@ -9,7 +9,10 @@ import typer
 
 from .mission import run_with_progress
 
+app = typer.Typer()
 
+
+@app.command("resume")
 def resume(
     run_dir: Annotated[Path, typer.Argument(help="Run directory of an unfinished run.")],
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
@@ -25,7 +28,3 @@ def resume(
 
     runner = MissionRunner(prepare_resume(run_dir), output=run_dir, resume=True)
     run_with_progress(runner, quiet=quiet, as_json=as_json)
-
-
-def register(app: typer.Typer) -> None:
-    app.command("resume")(resume)

@@ -5,10 +5,28 @@ from __future__ import annotations
 import json
 import signal
 import sys
+from typing import Annotated
 
 import typer
 
+from ..console import flags
 from ..errors import GuadalError
+
+app = typer.Typer()
+
+#: SitlOptions' fields, as this command's flags
+_FLAGS = {
+    "vehicles": "--vehicles",
+    "homes": "--homes",
+    "base_port": "--base-port",
+    "udp_out": "--udp-out",
+    "speedup": "--speedup",
+    "max_speed": "--max-speed",
+    "max_rate": "--max-rate",
+    "serial": "--serial",
+    "sysid": "--sysid",
+    "track_rate": "--track-rate",
+}
 
 
 def _latlon(text: str, option: str) -> tuple[float, float]:
@@ -43,74 +61,78 @@ def _host_port(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
+@app.command("sitl")
 def sitl(
-    vehicles: int = typer.Option(
-        1, "--vehicles", "-n", help="Number of boats; vehicle i gets system id i+1."
-    ),
-    home: str = typer.Option(
-        "37.41795,-5.98345", "--home", help="LAT,LON of vehicle 1; the others start 5 m apart eastwards."
-    ),
-    homes: str | None = typer.Option(
-        None, "--homes", help="LAT,LON;LAT,LON;... one home per vehicle (overrides --home)."
-    ),
-    speedup: float = typer.Option(1.0, "--speedup", help="Simulated seconds per wall second."),
-    base_port: int = typer.Option(
-        5760, "--base-port", help="TCP port of vehicle 1; vehicle i listens on base+10*i. 0 picks free ports."
-    ),
-    host: str = typer.Option("127.0.0.1", "--host", help="Address the TCP servers listen on."),
-    max_speed: float = typer.Option(
-        0.5, "--max-speed", help="Top speed of the hull in m/s (also WP_SPEED's default)."
-    ),
-    gps_noise: float = typer.Option(
-        0.0, "--gps-noise", help="Standard deviation of reported GPS positions, metres."
-    ),
-    current: str = typer.Option("0,0", "--current", help="Water current E,N in m/s that drifts every boat."),
-    udp_out: str | None = typer.Option(
-        None, "--udp-out", help="Also stream to HOST:PORT (+10*i for vehicle i)."
-    ),
-    serial: list[str] | None = typer.Option(
-        None,
-        "--serial",
-        help="Serial device per vehicle (repeat), or 'pty' for a fresh pseudo-terminal each.",
-    ),
-    baud: int = typer.Option(115200, "--baud", help="Baud rate for --serial devices."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the GPS noise."),
-    max_rate: float = typer.Option(
-        20.0, "--max-rate", help="Cap on wall-clock messages per second of each telemetry stream."
-    ),
-    track_rate: float = typer.Option(
-        1.0,
-        "--track-rate",
-        help="Position fixes (GLOBAL_POSITION_INT) kept per simulated second whatever the speed-up, "
-        "when asked for at least that rate; the --max-rate cap does not thin them below it.",
-    ),
-    instance: int | None = typer.Option(
-        None,
-        "-I",
-        "--instance",
-        help="As ardurover's -I: vehicle 1 listens on 5760+10*I (instead of --base-port).",
-    ),
-    model: str = typer.Option(
-        "motorboat", "--model", help="As ardurover's --model: motorboat, boat or sailboat (a boat), or rover."
-    ),
-    defaults: str | None = typer.Option(
-        None,
-        "--defaults",
-        help="As ardurover's --defaults: comma-separated parameter files (NAME VALUE per line), later ones win.",
-    ),
-    sysid: int = typer.Option(1, "--sysid", help="System id of vehicle 1; vehicle i gets SYSID+i-1."),
-    synthetic_clock: bool = typer.Option(
-        False,
-        "-S",
-        "--synthetic-clock",
-        help="Accepted as ardurover takes it (the emulator's clock always is).",
-    ),
-    wipe: bool = typer.Option(
-        False,
-        "-w",
-        "--wipe",
-        help="Accepted as ardurover takes it (the emulator keeps no parameters on disk).",
-    ),
+    vehicles: Annotated[
+        int, typer.Option("--vehicles", "-n", help="Number of boats; vehicle i gets system id i+1.")
+    ] = 1,
+    home: Annotated[
+        str, typer.Option(help="LAT,LON of vehicle 1; the others start 5 m apart eastwards.")
+    ] = "37.41795,-5.98345",
+    homes: Annotated[
+        str | None, typer.Option(help="LAT,LON;LAT,LON;... one home per vehicle (overrides --home).")
+    ] = None,
+    speedup: Annotated[float, typer.Option(help="Simulated seconds per wall second.")] = 1.0,
+    base_port: Annotated[
+        int, typer.Option(help="TCP port of vehicle 1; vehicle i listens on base+10*i. 0 picks free ports.")
+    ] = 5760,
+    host: Annotated[str, typer.Option(help="Address the TCP servers listen on.")] = "127.0.0.1",
+    max_speed: Annotated[
+        float, typer.Option(help="Top speed of the hull in m/s (also WP_SPEED's default).")
+    ] = 0.5,
+    gps_noise: Annotated[
+        float, typer.Option(help="Standard deviation of reported GPS positions, metres.")
+    ] = 0.0,
+    current: Annotated[str, typer.Option(help="Water current E,N in m/s that drifts every boat.")] = "0,0",
+    udp_out: Annotated[
+        str | None, typer.Option(help="Also stream to HOST:PORT (+10*i for vehicle i).")
+    ] = None,
+    serial: Annotated[
+        list[str] | None,
+        typer.Option(help="Serial device per vehicle (repeat), or 'pty' for a fresh pseudo-terminal each."),
+    ] = None,
+    baud: Annotated[int, typer.Option(help="Baud rate for --serial devices.")] = 115200,
+    seed: Annotated[int, typer.Option(help="Seed of the GPS noise.")] = 0,
+    max_rate: Annotated[
+        float, typer.Option(help="Cap on wall-clock messages per second of each telemetry stream.")
+    ] = 20.0,
+    track_rate: Annotated[
+        float,
+        typer.Option(
+            help="Position fixes (GLOBAL_POSITION_INT) kept per simulated second whatever the speed-up, "
+            "when asked for at least that rate; the --max-rate cap does not thin them below it."
+        ),
+    ] = 1.0,
+    instance: Annotated[
+        int | None,
+        typer.Option(
+            "-I",
+            "--instance",
+            help="As ardurover's -I: vehicle 1 listens on 5760+10*I (instead of --base-port).",
+        ),
+    ] = None,
+    model: Annotated[
+        str, typer.Option(help="As ardurover's --model: motorboat, boat or sailboat (a boat), or rover.")
+    ] = "motorboat",
+    defaults: Annotated[
+        str | None,
+        typer.Option(
+            help="As ardurover's --defaults: comma-separated parameter files (NAME VALUE per line), later ones win."
+        ),
+    ] = None,
+    sysid: Annotated[int, typer.Option(help="System id of vehicle 1; vehicle i gets SYSID+i-1.")] = 1,
+    synthetic_clock: Annotated[
+        bool,
+        typer.Option(
+            "-S", "--synthetic-clock", help="Accepted as ardurover takes it (the emulator's clock always is)."
+        ),
+    ] = False,
+    wipe: Annotated[
+        bool,
+        typer.Option(
+            "-w", "--wipe", help="Accepted as ardurover takes it (the emulator keeps no parameters on disk)."
+        ),
+    ] = False,
 ) -> None:
     """Run N emulated MAVLink boats; prints one JSON line when every endpoint is listening."""
     # a launcher may signal us while we start: remember it, and stop quietly once started
@@ -150,14 +172,11 @@ def sitl(
     )
     if gps_noise < 0:
         raise GuadalError(f"--gps-noise must be zero or positive (got {gps_noise}).")
-    from ..sitl.server import (  # after the cheap checks: pymavlink is slow to import
-        SitlOptions,
-        SitlServer,
-        stats,
-    )
+    from ..sitl.server import SitlOptions, SitlServer, stats  # after the cheap checks: pymavlink is slow
 
-    server = SitlServer(SitlOptions(**fields))
-    ready = server.open()
+    with flags(_FLAGS):
+        server = SitlServer(SitlOptions(**fields))
+        ready = server.open()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: server.request_stop())
     if early_stop:
@@ -170,7 +189,3 @@ def sitl(
         summary = stats(server)
         server.close()
     sys.stderr.write(json.dumps({"stopped": True, "vehicles": summary}) + "\n")
-
-
-def register(app: typer.Typer) -> None:
-    app.command("sitl")(sitl)

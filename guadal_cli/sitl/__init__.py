@@ -3,5 +3,5 @@ vehicle bridge relies on (``MAVLINK.md``), with a speed-up factor and no ArduPil
 
 ``server.SitlServer`` runs the fleet; ``vehicle.EmulatedBoat`` is one autopilot; ``physics`` the
 hull; ``telemetry`` what it reports; ``link`` the TCP/UDP/serial endpoints.  Nothing is imported
-here, so ``python -m guadal_cli.sitl`` can refuse bad options before loading pymavlink.
+here, so ``guadal sitl`` can refuse bad options before loading pymavlink.
 """

@@ -63,7 +63,8 @@ class SitlOptions:
         if self.homes:
             if len(self.homes) != self.vehicles:
                 raise GuadalError(
-                    f"--homes gives {len(self.homes)} positions for {self.vehicles} vehicles; give one LAT,LON per vehicle."
+                    f"gives {len(self.homes)} positions for {self.vehicles} vehicles; give one LAT,LON per vehicle.",
+                    field="homes",
                 )
             return list(self.homes)
         frame = GeoFrame(*self.home)
@@ -89,34 +90,40 @@ class SitlServer:
 
     def __init__(self, options: SitlOptions):
         if not 1 <= options.vehicles <= MAX_VEHICLES:
-            raise GuadalError(f"--vehicles must be between 1 and {MAX_VEHICLES} (got {options.vehicles}).")
+            raise GuadalError(
+                f"must be between 1 and {MAX_VEHICLES} (got {options.vehicles}).", field="vehicles"
+            )
         if not 1 <= options.sysid <= MAX_VEHICLES - options.vehicles + 1:
             raise GuadalError(
-                f"--sysid must be between 1 and {MAX_VEHICLES - options.vehicles + 1} for {options.vehicles} vehicles "
-                f"(got {options.sysid})."
+                f"must be between 1 and {MAX_VEHICLES - options.vehicles + 1} for {options.vehicles} vehicles "
+                f"(got {options.sysid}).",
+                field="sysid",
             )
         last = 10 * (options.vehicles - 1)
         if options.base_port and not 0 < options.base_port <= 65535 - last:
             raise GuadalError(
-                f"--base-port {options.base_port} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}, or 0."
+                f"{options.base_port} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}, or 0.",
+                field="base_port",
             )
         if options.udp_out and not 0 < options.udp_out[1] <= 65535 - last:
             raise GuadalError(
-                f"--udp-out port {options.udp_out[1]} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}."
+                f"port {options.udp_out[1]} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}.",
+                field="udp_out",
             )
         if options.speedup <= 0:
-            raise GuadalError(f"--speedup must be positive (got {options.speedup}).")
+            raise GuadalError(f"must be positive (got {options.speedup}).", field="speedup")
         if options.max_speed <= 0:
-            raise GuadalError(f"--max-speed must be positive (got {options.max_speed}).")
+            raise GuadalError(f"must be positive (got {options.max_speed}).", field="max_speed")
         if options.max_rate <= 0:
-            raise GuadalError(f"--max-rate must be positive (got {options.max_rate}).")
+            raise GuadalError(f"must be positive (got {options.max_rate}).", field="max_rate")
         if not options.track_rate > 0:
             raise GuadalError(
-                f"--track-rate must be positive fixes per simulated second (got {options.track_rate})."
+                f"must be positive fixes per simulated second (got {options.track_rate}).", field="track_rate"
             )
         if options.serial and len(options.serial) not in (1, options.vehicles):
             raise GuadalError(
-                f"--serial gives {len(options.serial)} devices for {options.vehicles} vehicles; give one, or one per vehicle."
+                f"gives {len(options.serial)} devices for {options.vehicles} vehicles; give one, or one per vehicle.",
+                field="serial",
             )
         if (
             options.serial
@@ -125,7 +132,8 @@ class SitlServer:
             and options.serial[0] != "pty"
         ):
             raise GuadalError(
-                "one --serial device cannot serve several vehicles; give one per vehicle, or 'pty'."
+                "names one device, which cannot serve several vehicles; give one per vehicle, or 'pty'.",
+                field="serial",
             )
         self.options = options
         self.selector = selectors.DefaultSelector()
@@ -168,8 +176,9 @@ class SitlServer:
                     self.listeners.append(TcpListener(link, opts.host, port))
                 except OSError as exc:
                     raise GuadalError(
-                        f"cannot listen on {opts.host}:{port} for vehicle {sysid} ({exc.strerror}); "
-                        "choose another --base-port, or 0 for free ports."
+                        f"cannot be used: nothing can listen on {opts.host}:{port} for vehicle {sysid} "
+                        f"({exc.strerror}); choose another, or 0 for free ports.",
+                        field="base_port",
                     ) from None
                 if opts.udp_out:
                     host, port = opts.udp_out[0], opts.udp_out[1] + 10 * i

@@ -37,7 +37,7 @@ def ardurover_stand_in(folder: Path) -> Path:
         f'    for f in $(echo "$a" | tr "," " "); do cat "$f" >> {shlex.quote(str(folder))}/params-$(basename "$(pwd)").parm; done\n'
         '  fi; prev="$a"\n'
         "done\n"
-        f'exec {shlex.quote(sys.executable)} -m guadal_cli.sitl "$@"\n'
+        f'exec {shlex.quote(sys.executable)} -m guadal_cli sitl "$@"\n'
     )
     wrapper.chmod(0o755)
     return wrapper

@@ -1,5 +1,5 @@
 """`guadal sitl` as a process: bad options, busy ports, water current and GPS noise, signals
-(the last through ``python -m guadal_cli.sitl``, the light entry point a launcher uses)."""
+(the last through ``python -m guadal_cli sitl``, as ``guadal stack`` launches it)."""
 
 from __future__ import annotations
 
@@ -21,9 +21,8 @@ BAD_RUNS = {
 
 @pytest.fixture(scope="module")
 def bad_runs():
-    """Every refused command line plus one on a port already taken, started together through the
-    light entry point (same option handling as ``guadal sitl``, whose start-up imports the whole
-    CLI; the fleet in test_sitl_emulator.py goes through ``guadal sitl`` itself)."""
+    """Every refused command line plus one on a port already taken, started together through
+    ``python -m guadal_cli sitl`` (the fleet in test_sitl_emulator.py goes through ``guadal sitl``)."""
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen(1)

@@ -15,9 +15,9 @@ os.environ["MAVLINK20"] = "1"  # before pymavlink.mavutil is imported anywhere
 from pymavlink import mavutil  # noqa: E402
 
 GUADAL = str(Path(sys.executable).with_name("guadal"))
-#: the CLI command, and the light entry point a launcher uses (skips importing the whole CLI)
+#: the CLI command, and the same command through the interpreter, as ``guadal stack`` launches it
 SITL_CLI = [GUADAL, "sitl"]
-SITL_MODULE = [sys.executable, "-m", "guadal_cli.sitl"]
+SITL_MODULE = [sys.executable, "-m", "guadal_cli", "sitl"]
 GCS_SYSID = 255
 GCS_COMPID = 190
 #: MAVLINK.md's mask for "go to this lat/lon": position used; velocity, accel, yaw, yaw rate ignored
