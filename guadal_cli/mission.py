@@ -131,17 +131,30 @@ class Mission(_Strict):
     output: OutputSection = OutputSection()
     max_steps: int = Field(default=100_000, ge=1, le=10_000_000, description="Safety stop on steps.")
 
-    @field_validator("map", mode="before")
+    @field_validator("map", mode="before", json_schema_input_type=str | MapSection)
     @classmethod
     def _map_shorthand(cls, value: Any):
         return {"path": value} if isinstance(value, str) else value
 
 
 def json_schema() -> dict:
-    """JSON Schema of the mission file, for editors."""
+    """JSON Schema of the mission file, for editors: the plugin sections are unions of every
+    installed plugin's ``Config``, so parameters complete too."""
     schema = Mission.model_json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "guadal mission"
+    mode = schema["$defs"]["AlgorithmSection"]["properties"]["mode"]
+    for section, name_key, shared, name_required in (
+        ("environment", "type", {}, True),
+        ("algorithm", "type", {"mode": mode}, True),
+        ("backend", "level", {}, False),  # level defaults to sim
+    ):
+        union, defs = plugins.config_union(section, name_key, shared, name_required)
+        schema["properties"][section] = {
+            **union,
+            "description": f"The {section}: {name_key} and its parameters.",
+        }
+        schema["$defs"].update(defs)
     return schema
 
 

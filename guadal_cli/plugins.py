@@ -1,9 +1,15 @@
 """Plugin discovery through entry points.
 
-Every plugin kind is an entry-point group. Listing a group reads package metadata only, so
-``guadal plugins`` imports nothing; a mission imports just the plugins it names. A name may
-also be ``package.module:ClassName`` for a plugin that is not installed as a package (a file
-on ``PYTHONPATH`` or beside the mission).
+Every plugin kind is an entry-point group, and has a contract: a base class in the ``base.py``
+beside its built-in plugins (:data:`BASES`). Listing a group reads package metadata only, so
+``guadal plugins`` imports nothing; a mission imports just the plugins it names, and each must
+subclass its kind's base. A name may also be ``package.module:ClassName`` for a plugin that is
+not installed as a package (a module on ``PYTHONPATH``).
+
+Importing a module runs its top-level code, exactly as an installed plugin's entry point does:
+so ``validate`` imports the one module a mission names and nothing else, and refuses names
+from Python's standard library (no plugin lives there) before importing anything, so
+``type: "this:x"`` prints no Zen of Python. Name only modules you trust, as with any import.
 """
 
 from __future__ import annotations
@@ -24,6 +30,15 @@ GROUPS = {
     "backend": "guadal.backends",
     "ground_truth": "guadal.ground_truths",
     "sensor": "guadal.sensors",
+}
+
+#: plugin kind -> the base class its plugins subclass (module:class, imported when needed)
+BASES = {
+    "environment": "guadal_cli.envs.base:Environment",
+    "algorithm": "guadal_cli.planners.base:Planner",
+    "backend": "guadal_cli.fleet.base:Backend",
+    "ground_truth": "guadal_cli.envs.base:GroundTruth",
+    "sensor": "guadal_cli.vehicle.base:Sensor",
 }
 
 
@@ -65,6 +80,11 @@ def _available(kind: str) -> dict[str, PluginInfo]:
 
 def _import_target(target: str, kind: str, shown_name: str):
     module_name, _, attr = target.partition(":")
+    if module_name.split(".")[0] in sys.stdlib_module_names:
+        raise GuadalError(
+            f"the {kind} plugin '{shown_name}' names '{module_name}', a module of Python's standard "
+            f"library, which holds no guadal plugin; give 'module:Class' of a {kind} plugin."
+        )
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
@@ -83,15 +103,30 @@ def _import_target(target: str, kind: str, shown_name: str):
     return obj
 
 
-def load(kind: str, name: str):
-    """The plugin class for ``name``, importing only that plugin.
+def base_class(kind: str) -> type:
+    """The contract every plugin of ``kind`` subclasses."""
+    module_name, _, attr = BASES[kind].partition(":")
+    return getattr(importlib.import_module(module_name), attr)
+
+
+def _checked(obj, kind: str, shown_name: str) -> type:
+    base = base_class(kind)
+    if not (isinstance(obj, type) and issubclass(obj, base)):
+        what = f"class {obj.__name__}" if isinstance(obj, type) else f"a {type(obj).__name__}"
+        raise GuadalError(
+            f"the {kind} plugin '{shown_name}' is {what}, not a subclass of "
+            f"{base.__module__}.{base.__name__} (the {kind} contract)."
+        )
+    return obj
+
+
+def load(kind: str, name: str) -> type:
+    """The plugin class for ``name``, importing only that plugin and checking its contract.
 
     Unknown names get the list of known ones and the closest match.
     """
     if ":" in name:
-        obj = _import_target(name, kind, name)
-        obj.plugin_name = getattr(obj, "plugin_name", name)
-        return obj
+        return _checked(_import_target(name, kind, name), kind, name)
     known = available(kind)
     if name not in known:
         names = sorted(known)
@@ -101,9 +136,7 @@ def load(kind: str, name: str):
             f"unknown {kind} '{name}' (known: {', '.join(names) or 'none installed'}; "
             f"or give 'module:Class').{hint}"
         )
-    obj = _import_target(known[name].target, kind, name)
-    obj.plugin_name = name
-    return obj
+    return _checked(_import_target(known[name].target, kind, name), kind, name)
 
 
 def describe(kind: str, name: str) -> dict:
@@ -141,3 +174,38 @@ def build_config(kind: str, section, where: str, name_key: str = "type"):
     except ValidationError as exc:
         raise GuadalError(explain_validation_error(exc, cls.Config, prefix=where)) from exc
     return cls, config
+
+
+def config_union(
+    kind: str, name_key: str = "type", shared: dict | None = None, name_required: bool = True
+) -> tuple[dict, dict]:
+    """JSON Schema of a ``{name_key: NAME, ...params}`` section: one branch per installed plugin
+    (its ``Config``, with ``name_key`` fixed to its name), plus one for ``module:Class``.
+
+    Returns ``(schema, defs)``; ``defs`` go into the document's ``$defs`` (prefixed per plugin,
+    so two plugins' models of one name do not collide). ``shared`` are properties every branch
+    accepts (an algorithm's ``mode``); without ``name_required`` a section may leave the name
+    out (a backend's ``level`` defaults to ``sim``). Imports every installed plugin of ``kind``.
+    """
+    shared = shared or {}
+    branches, defs = [], {}
+    for name in available(kind):
+        cls = load(kind, name)
+        schema = cls.Config.model_json_schema(ref_template=f"#/$defs/{kind}.{name}.{{model}}")
+        defs.update({f"{kind}.{name}.{key}": value for key, value in schema.pop("$defs", {}).items()})
+        properties = {**shared, **schema.get("properties", {}), name_key: {"const": name}}
+        required = sorted({name_key, *schema.get("required", [])} - (set() if name_required else {name_key}))
+        branch = {**schema, "title": f"{kind} {name}", "properties": properties, "required": required}
+        if schema.get("additionalProperties") is False:
+            branch["additionalProperties"] = False
+        branches.append(branch)
+    branches.append(
+        {
+            "title": f"{kind} from a module",
+            "properties": {name_key: {"type": "string", "pattern": r"^[A-Za-z_][\w.]*:[A-Za-z_][\w.]*$"}},
+            "required": [name_key],
+        }
+    )
+    if name_required:  # the name tells the branch: a discriminated union
+        return {"oneOf": branches, "discriminator": {"propertyName": name_key}}, defs
+    return {"anyOf": branches}, defs

@@ -90,3 +90,20 @@ class Environment(ABC):
     def model_description(self) -> dict | None:
         """Which model estimated the world, for the run manifest (None: nothing to state)."""
         return None
+
+
+class GroundTruth(ABC):
+    """A ground-truth plugin (``environment.ground_truth.type``): one scalar value per node.
+
+    ``Config`` validates its section; the constructor only stores it (and may refuse an
+    inconsistent one). ``generate`` draws the field; all its randomness comes from ``rng``.
+    """
+
+    Config: ClassVar[type[BaseModel]]
+
+    def __init__(self, config: BaseModel):
+        self.config = config
+
+    @abstractmethod
+    def generate(self, graph: NavGraph, rng: np.random.Generator, base_dir=None) -> np.ndarray:
+        """Values at ``graph``'s nodes; ``base_dir`` resolves relative file paths."""

@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from ..errors import GuadalError
 from ..graph import NavGraph
+from .base import GroundTruth
 
 
 class _Config(BaseModel):
@@ -23,7 +24,7 @@ def _normalise(values: np.ndarray) -> np.ndarray:
     return np.zeros_like(values) if hi - lo < 1e-12 else (values - lo) / (hi - lo)
 
 
-class ShekelField:
+class ShekelField(GroundTruth):
     """Shekel-style multi-peak field, normalised to [0, 1] over the water nodes.
 
     ``f(x) = sum_i 1 / (c_i + |x - a_i|^2)`` with the map scaled so its longest side spans 10
@@ -39,7 +40,7 @@ class ShekelField:
     def __init__(self, config: ShekelField.Config):
         if config.max_width < config.min_width:
             raise GuadalError("must be at least min_width.", field="max_width")
-        self.config = config
+        super().__init__(config)
 
     def generate(self, graph: NavGraph, rng: np.random.Generator, base_dir=None) -> np.ndarray:
         xy = graph.xy - graph.xy.min(axis=0)
@@ -53,7 +54,7 @@ class ShekelField:
         return _normalise((1.0 / (widths[None, :] + d2)).sum(axis=1))
 
 
-class GPPriorField:
+class GPPriorField(GroundTruth):
     """A smooth field drawn from a zero-mean GP prior (RBF), normalised to [0, 1].
 
     Drawn on the map's whole grid by circulant embedding: the grid, padded by six length scales
@@ -67,9 +68,6 @@ class GPPriorField:
 
     class Config(_Config):
         length_scale: float = Field(default=30.0, gt=0, description="Correlation length, metres.")
-
-    def __init__(self, config: GPPriorField.Config):
-        self.config = config
 
     def generate(self, graph: NavGraph, rng: np.random.Generator, base_dir=None) -> np.ndarray:
         from scipy import fft
@@ -85,7 +83,7 @@ class GPPriorField:
         ]
         if size[0] * size[1] > self.MAX_CELLS:
             raise GuadalError(
-                f"environment.ground_truth: a gp_prior with length_scale {ell:g} m on this {rows} x {cols} grid "
+                f"a gp_prior with length_scale {ell:g} m on this {rows} x {cols} grid "
                 f"needs a {size[0]} x {size[1]} FFT, more than the {self.MAX_CELLS:,} cells allowed; "
                 "use a shorter length_scale, a coarser map or a file ground truth."
             )
@@ -106,7 +104,7 @@ class GPPriorField:
         return _normalise(field[graph.rows, graph.cols])
 
 
-class FileField:
+class FileField(GroundTruth):
     """An externally provided map (a past survey, a satellite estimate) on the map's grid.
 
     The file is a CSV grid of the map's shape (comma or whitespace separated); land cells may
@@ -117,9 +115,6 @@ class FileField:
     class Config(_Config):
         path: str = Field(description="CSV grid with the map's shape, relative to the mission file.")
         normalise: bool = False
-
-    def __init__(self, config: FileField.Config):
-        self.config = config
 
     def generate(self, graph: NavGraph, rng: np.random.Generator, base_dir=None) -> np.ndarray:
         path = Path(self.config.path)

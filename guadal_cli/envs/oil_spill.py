@@ -75,7 +75,7 @@ class OilSpillConfig(BaseModel):
     )
     max_substep_s: float = Field(default=30.0, gt=0, description="Longest integration sub-step, seconds.")
 
-    @field_validator("sources", mode="before")
+    @field_validator("sources", mode="before", json_schema_input_type=int | list[OilSource])
     @classmethod
     def _sources(cls, value):
         return count_or_list(value, "sources")

@@ -60,7 +60,7 @@ class TrashConfig(BaseModel):
         default=0.0, ge=0, le=10, description="Random-walk strength of the drift, m/sqrt(s)."
     )
 
-    @field_validator("spots", mode="before")
+    @field_validator("spots", mode="before", json_schema_input_type=int | list[Site])
     @classmethod
     def _spots(cls, value):
         return count_or_list(value, "spots")

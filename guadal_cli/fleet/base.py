@@ -15,6 +15,9 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import ClassVar
+
+from pydantic import BaseModel
 
 from ..errors import GuadalError
 
@@ -121,3 +124,22 @@ class Fleet(ABC):
 
     def close(self) -> None:
         """Release connections and processes; safe to call twice."""
+
+
+class Backend(ABC):
+    """A backend plugin (one ``backend.level``): builds the fleet a mission runs on.
+
+    ``Config`` validates the mission's ``backend`` section (its ``level`` included); the
+    constructor only stores it. ``make_fleet`` is called once per run; the fleet it returns is
+    closed by the runner.
+    """
+
+    Config: ClassVar[type[BaseModel]]
+
+    def __init__(self, config: BaseModel):
+        self.config = config
+
+    @abstractmethod
+    def make_fleet(self, *, graph, fleet_config, sensor: Sensor, mission=None) -> Fleet:
+        """The fleet for one run: ``fleet_config`` is the mission's ``fleet`` section, ``sensor``
+        the environment's synthetic sensor, ``mission`` the prepared mission (or None)."""

@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict
 
 from ..errors import GuadalError
 from ..graph import NavGraph
-from .base import Fleet, Measurement, Sensor
+from .base import Backend, Fleet, Measurement, Sensor
 
 
 class Vehicle:
@@ -128,13 +128,10 @@ class SimConfig(BaseModel):
     level: str = "sim"
 
 
-class SimBackend:
+class SimBackend(Backend):
     """Entry point of the ``sim`` level: builds a :class:`LocalFleet`."""
 
     Config = SimConfig
-
-    def __init__(self, config: SimConfig):
-        self.config = config
 
     def make_fleet(self, *, graph: NavGraph, fleet_config, sensor: Sensor, mission=None) -> Fleet:
         return LocalFleet(graph, fleet_config.vehicles, fleet_config.max_distance, fleet_config.speed, sensor)

@@ -25,8 +25,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse import csr_matrix
 
 from ..envs.base import Observation
+from ._spreading import SpreadingPlanner, explore, pick
 from .base import SEQUENTIAL, TARGET
-from .frontier import SpreadingPlanner, explore, pick
 
 
 class DetectionGreedyConfig(BaseModel):

@@ -1,10 +1,5 @@
-"""Sensor sources for the bridge: plugins of the entry-point group ``guadal.sensors``.
-
-A sensor class has a pydantic ``Config``, is built as ``cls(config, context)`` and answers
-``read(lat, lon) -> float`` for the boat's current position, raising :class:`SensorError`
-with one sentence when it cannot. ``close()`` releases what it holds. ``cli_field`` names the
-config field that ``--sensor NAME:VALUE`` fills, so a third-party probe gets the same short
-form on the command line.
+"""Sensor sources for the bridge: plugins of the entry-point group ``guadal.sensors``, each a
+:class:`~guadal_cli.vehicle.base.Sensor` (the contract, in ``base.py``).
 
 Built in:
 
@@ -29,6 +24,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import GuadalError
 from ..graph import NavGraph
+from .base import Sensor
 
 
 class SensorError(Exception):
@@ -52,7 +48,7 @@ def _resolve(path: str, base_dir: Path | None) -> Path:
     return p if p.is_absolute() or base_dir is None else base_dir / p
 
 
-class SyntheticSensor:
+class SyntheticSensor(Sensor):
     """Ground truth from a CSV grid, so a SITL boat measures what the simulation would."""
 
     cli_field = "path"
@@ -80,11 +76,8 @@ class SyntheticSensor:
             value += float(self.rng.normal(0.0, self.config.noise_std))
         return value
 
-    def close(self) -> None:
-        pass
 
-
-class ReplaySensor:
+class ReplaySensor(Sensor):
     """Values recorded on an earlier survey, played back at the nearest recorded place."""
 
     cli_field = "path"
@@ -139,11 +132,8 @@ class ReplaySensor:
         x, y = self.projection.to_xy(lat, lon)
         return float(self.values[self.tree.query([float(x), float(y)])[1]])
 
-    def close(self) -> None:
-        pass
 
-
-class SerialSensor:
+class SerialSensor(Sensor):
     """A probe on a serial line: ``READ\\n`` → ``VALUE <number>\\n`` or ``ERR <text>\\n``."""
 
     cli_field = "port"

@@ -142,6 +142,6 @@ def test_gp_prior_draws_have_the_kernels_correlation_on_large_grids():
 
 def test_a_gp_prior_too_big_to_draw_is_refused_in_one_sentence(monkeypatch):
     monkeypatch.setattr(GPPriorField, "MAX_CELLS", 10_000)
-    with pytest.raises(GuadalError, match=r"^environment\.ground_truth: .* 300 x 300 grid .*; use a") as err:
+    with pytest.raises(GuadalError, match=r"^a gp_prior .* 300 x 300 grid .*; use a") as err:
         GPPriorField(GPPriorField.Config()).generate(square_lake(300), np.random.default_rng(0))
     assert str(err.value).count(". ") == 0

@@ -5,8 +5,8 @@ from support import LAKE
 from guadal_cli.envs.base import Observation
 from guadal_cli.graph import NavGraph
 from guadal_cli.maps.format import load_map
+from guadal_cli.planners._spreading import frontier_mask
 from guadal_cli.planners.detection_greedy import DetectionGreedy, DetectionGreedyConfig
-from guadal_cli.planners.frontier import frontier_mask
 
 
 @pytest.fixture(scope="module")

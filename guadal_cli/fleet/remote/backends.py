@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ...errors import GuadalError
 from ...graph import NavGraph
-from ..base import Fleet, Sensor
+from ..base import Backend, Fleet, Sensor
 from .config import RealConfig, RemoteConfig, SitlConfig
 from .fleet import RemoteFleet
 
@@ -13,13 +13,10 @@ def _fleet(config: RemoteConfig, graph, fleet_config, sensor, **kw) -> RemoteFle
     return RemoteFleet(graph, fleet_config.vehicles, fleet_config.max_distance, sensor, config, **kw)
 
 
-class SitlBackend:
+class SitlBackend(Backend):
     """Entry point of the ``sitl`` level; with ``launch: true`` it owns a whole stack for the run."""
 
     Config = SitlConfig
-
-    def __init__(self, config: SitlConfig):
-        self.config = config
 
     def make_fleet(self, *, graph: NavGraph, fleet_config, sensor: Sensor, mission=None) -> Fleet:
         cfg = self.config
@@ -70,13 +67,10 @@ class SitlBackend:
             raise
 
 
-class RealBackend:
+class RealBackend(Backend):
     """Entry point of the ``real`` level: the same RemoteFleet, with field-sized timeouts."""
 
     Config = RealConfig
-
-    def __init__(self, config: RealConfig):
-        self.config = config
 
     def make_fleet(self, *, graph: NavGraph, fleet_config, sensor: Sensor, mission=None) -> Fleet:
         return _fleet(self.config, graph, fleet_config, sensor)
