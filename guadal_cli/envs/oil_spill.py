@@ -117,7 +117,6 @@ class OilSpillEnvironment(Environment):
         )
         self._footprints = [g.nodes_within(n, s.radius_m) for n, s in self._sources]
         self.mass = np.zeros(g.n_nodes)
-        self.released = 0.0
         self._started = [False] * len(self._sources)
         self._time = 0.0
         self._release(0.0, 0.0)
@@ -141,7 +140,6 @@ class OilSpillEnvironment(Environment):
                 amount += s.rate * max(0.0, min(t1, end) - max(t0, s.start_s))
             if amount > 0:
                 self.mass[nodes] += amount / len(nodes)
-                self.released += amount
 
     def _flow(self, dt: float) -> None:
         """One explicit finite-volume step: upwind advection plus diffusion, water faces only."""

@@ -136,10 +136,6 @@ class LowLevelPlanner:
             return f"target {lat:.7f},{lon:.7f} is node {actual}, not the node {node} the command names."
         return None
 
-    def node_of(self, lat: float, lon: float) -> int:
-        """Nearest coarse water node to a position (where a sensor reading belongs)."""
-        return self.graph.nearest_node(lat, lon)
-
     # --- paths -----------------------------------------------------------------------------
     def _xy(self, lat: float, lon: float) -> np.ndarray:
         x, y = self.fine_map.projection.to_xy(lat, lon)
