@@ -18,8 +18,12 @@ _HELP = (
     "or your own rule with --water-color or --threshold. See docs/discretize.md."
 )
 
-#: DiscretizeOptions' fields, as this command's flags
+#: the library's parameter names (DiscretizeOptions, WaterRule, the sources), as this command's flags
 _FLAGS = {
+    "bounds": "--bounds",
+    "water_color": "--water-color",
+    "threshold": "--threshold",
+    "tolerance": "--tolerance",
     "cell_size_m": "--cell-size",
     "min_fraction": "--min-fraction",
     "supersample": "--supersample",
@@ -117,17 +121,19 @@ def discretize_map(
     )
     if tolerance is not None and not water_color:
         raise GuadalError("--tolerance goes with --water-color (the largest RGB distance from that colour).")
-    rule = WaterRule.from_options(water_color, 40.0 if tolerance is None else tolerance, threshold, invert)
-    src = open_source(
-        source,
-        bounds=bounds,
-        rule=rule,
-        water_value=water_value,
-        latlon_grid=latlon_grid,
-        delimiter=delimiter,
-        image_only_options=image_options,
-    )
     with flags(_FLAGS):
+        rule = WaterRule.from_options(
+            water_color, 40.0 if tolerance is None else tolerance, threshold, invert
+        )
+        src = open_source(
+            source,
+            bounds=bounds,
+            rule=rule,
+            water_value=water_value,
+            latlon_grid=latlon_grid,
+            delimiter=delimiter,
+            image_only_options=image_options,
+        )
         options = DiscretizeOptions(
             cell_size_m=cell_size,
             min_fraction=min_fraction,

@@ -9,9 +9,21 @@ from typing import Annotated
 
 import typer
 
-from ..console import console, err_console, print_json
+from ..console import console, err_console, flags, print_json
 
 app = typer.Typer()
+
+#: report.build's Options fields (and write's folder), as this command's flags
+_FLAGS = {
+    "x_axis": "--x",
+    "animate": "--animate",
+    "group_by": "--group-by",
+    "max_frames": "--frames",
+    "metrics": "--metrics",
+    "out_dir": "--output",
+    "animate_runs": "--animate-runs",
+    "where": "--where",
+}
 
 
 @app.command("report")
@@ -90,7 +102,8 @@ def report(
     quiet = as_csv or as_json or as_markdown
     if bool(runs) == bool(db):
         raise GuadalError("give run directories or --db URL (with --where filters), one of the two.")
-    with ExitStack() as exported:  # with --db: the matching runs, exported to a folder the report reads
+    # with --db: the matching runs, exported to a folder the report reads
+    with ExitStack() as exported, flags(_FLAGS):
         if db:
             runs = [exported.enter_context(runs_from_database(db, where or []))]
         swept = sweep_runs(runs)  # a sweep directory: its runs, grouped by its axes

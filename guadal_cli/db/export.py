@@ -111,7 +111,8 @@ def parse_where(conditions: list[str]) -> dict[str, str]:
         key = key.strip()
         if not sep or key not in queries.RUN_FILTERS or not value.strip():
             raise GuadalError(
-                f"--where '{condition}' must be KEY=VALUE with KEY one of {', '.join(queries.RUN_FILTERS)}."
+                f"'{condition}' must be KEY=VALUE with KEY one of {', '.join(queries.RUN_FILTERS)}.",
+                field="where",
             )
         filters[key] = value.strip()
     return filters

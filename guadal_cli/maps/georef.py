@@ -62,8 +62,9 @@ class Bounds:
             values = []
         if len(values) != 4:
             raise GuadalError(
-                f"--bounds '{text}' must be four numbers north,south,east,west in decimal degrees "
-                "(e.g. 37.4200,37.4164,-5.9780,-5.9830)."
+                f"'{text}' must be four numbers north,south,east,west in decimal degrees "
+                "(e.g. 37.4200,37.4164,-5.9780,-5.9830).",
+                field="bounds",
             )
         return cls(*values)
 

@@ -69,13 +69,15 @@ def parse_threshold(text: str) -> Threshold:
     match = _THRESHOLD.match(text or "")
     if not match:
         raise GuadalError(
-            f"--threshold '{text}' is not a rule: write CHANNEL OP VALUE, e.g. 'blue>120' or 'index>0.1' "
-            f"(channels: {', '.join(CHANNELS)}; operators: <, <=, >, >=)."
+            f"'{text}' is not a rule: write CHANNEL OP VALUE, e.g. 'blue>120' or 'index>0.1' "
+            f"(channels: {', '.join(CHANNELS)}; operators: <, <=, >, >=).",
+            field="threshold",
         )
     name = _ALIASES.get(match.group(1).lower(), match.group(1).lower())
     if name not in CHANNELS:
         raise GuadalError(
-            f"--threshold: unknown channel '{match.group(1)}' (allowed: {', '.join(CHANNELS)})."
+            f"names an unknown channel '{match.group(1)}' (allowed: {', '.join(CHANNELS)}).",
+            field="threshold",
         )
     return Threshold(name, match.group(2), float(match.group(3)))
 
@@ -93,14 +95,15 @@ def parse_colour(text: str) -> tuple[float, float, float]:
         values = ()
     if len(values) != 3 or not all(0 <= v <= 255 for v in values):
         raise GuadalError(
-            f"--water-color '{text}' must be R,G,B with each value in 0-255 (e.g. 40,90,110) or #RRGGBB."
+            f"'{text}' must be R,G,B with each value in 0-255 (e.g. 40,90,110) or #RRGGBB.",
+            field="water_color",
         )
     return values  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
 class WaterRule:
-    """How to tell water from land in an image; built once from the command-line options."""
+    """How to tell water from land in an image: a colour (with a tolerance) or a threshold rule."""
 
     colour: tuple[float, float, float] | None = None
     tolerance: float = 40.0
@@ -112,9 +115,11 @@ class WaterRule:
         cls, water_color: str | None, tolerance: float, threshold: str | None, invert: bool
     ) -> WaterRule:
         if water_color and threshold:
-            raise GuadalError("give either --water-color or --threshold, not both.")
+            raise GuadalError(
+                "cannot be combined with a water colour; give one rule or the other.", field="threshold"
+            )
         if not tolerance >= 0:
-            raise GuadalError(f"--tolerance must be zero or more (got {tolerance:g}).")
+            raise GuadalError(f"must be zero or more (got {tolerance:g}).", field="tolerance")
         return cls(
             colour=parse_colour(water_color) if water_color else None,
             tolerance=float(tolerance),

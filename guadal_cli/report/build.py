@@ -92,13 +92,17 @@ class Report:
 def check_options(options: Options) -> None:
     """Refuse impossible requests before any work is done."""
     if options.x_axis not in plots.X_AXES:
-        raise GuadalError(f"--x must be one of {', '.join(plots.X_AXES)} (got '{options.x_axis}').")
+        raise GuadalError(
+            f"must be one of {', '.join(plots.X_AXES)} (got '{options.x_axis}').", field="x_axis"
+        )
     if options.animate is not None and options.animate not in FORMATS:
-        raise GuadalError(f"--animate must be one of {', '.join(FORMATS)} or none (got '{options.animate}').")
+        raise GuadalError(
+            f"must be one of {', '.join(FORMATS)} or none (got '{options.animate}').", field="animate"
+        )
     if not options.group_by:
-        raise GuadalError("--group-by needs at least one mission field, such as algorithm.type.")
+        raise GuadalError("needs at least one mission field, such as algorithm.type.", field="group_by")
     if options.max_frames < 2:
-        raise GuadalError(f"--frames must be at least 2 (got {options.max_frames}).")
+        raise GuadalError(f"must be at least 2 (got {options.max_frames}).", field="max_frames")
 
 
 def build(runs: list[Run], options: Options) -> Report:
@@ -137,7 +141,8 @@ def curve_metrics(runs: list[Run], wanted: list[str] | None) -> list[str]:
     unknown = [m for m in wanted if m not in available]
     if unknown:
         raise GuadalError(
-            f"--metrics: no run recorded {', '.join(repr(m) for m in unknown)}; available: {', '.join(available)}."
+            f"no run recorded {', '.join(repr(m) for m in unknown)}; available: {', '.join(available)}.",
+            field="metrics",
         )
     return wanted
 
@@ -153,8 +158,8 @@ def animated_runs(report: Report, which: str) -> list[Run]:
     unknown = [n for n in names if n not in by_name]
     if unknown or not names:
         raise GuadalError(
-            f"--animate-runs must be 'all', 'first' or names of runs in this report "
-            f"({', '.join(by_name)}); got '{which}'."
+            f"must be 'all', 'first' or names of runs in this report ({', '.join(by_name)}); got '{which}'.",
+            field="animate_runs",
         )
     return [by_name[n] for n in names]
 
@@ -165,10 +170,10 @@ def write(
     """Write every table, figure, animation and export; return warnings met on the way."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
-        raise GuadalError(f"--output '{out_dir}' is a file; give a folder for the report.")
+        raise GuadalError(f"'{out_dir}' is a file; give a folder for the report.", field="out_dir")
     if options.animate == "mp4" and not ffmpeg_available():
         raise GuadalError(
-            "--animate mp4 needs an ffmpeg program on the PATH, and none was found; use --animate gif."
+            "mp4 needs an ffmpeg program on the PATH, and none was found; use gif.", field="animate"
         )
     metrics = curve_metrics(report.runs, options.metrics)
     to_animate = animated_runs(report, options.animate_runs) if options.animate else []

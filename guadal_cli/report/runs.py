@@ -296,8 +296,9 @@ def group_runs(runs: list[Run], fields: list[str]) -> list[Group]:
     for name in fields:
         if name not in RUN_FIELDS and all(mission_field(r.mission, name) is None for r in runs):
             raise GuadalError(
-                f"--group-by field '{name}' is in none of the runs' missions; give 'map', 'level' or dotted "
-                "paths into mission.resolved.yaml such as algorithm.type, fleet.vehicles or environment.type."
+                f"field '{name}' is in none of the runs' missions; give 'map', 'level' or dotted paths into "
+                "mission.resolved.yaml such as algorithm.type, fleet.vehicles or environment.type.",
+                field="group_by",
             )
     maps = map_labels(runs)
     groups: dict[tuple, Group] = {}

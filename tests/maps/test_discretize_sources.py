@@ -249,7 +249,7 @@ def test_no_water_in_an_image_is_refused(tmp_path):
     "text, message",
     [
         ("blue=>3", "is not a rule"),
-        ("cyan>3", "unknown channel 'cyan'"),
+        ("cyan>3", "an unknown channel 'cyan'"),
     ],
 )
 def test_bad_threshold_rules(text, message):

@@ -58,8 +58,10 @@ def test_group_by_several_mission_fields(runs_root):
 
 
 def test_unknown_group_field_is_one_clear_error(runs_root):
-    with pytest.raises(GuadalError, match="--group-by field 'algorithm.typo' is in none"):
+    with pytest.raises(GuadalError, match="group_by: field 'algorithm.typo' is in none"):
         build(find_runs([runs_root]), Options(group_by=["algorithm.typo"]))
+    result = invoke("report", runs_root, "--group-by", "algorithm.typo")
+    assert result.exit_code == 2 and "--group-by field 'algorithm.typo' is in none" in result.stderr
     result = invoke("report", runs_root, "--group-by", " ,")
     assert result.exit_code == 2 and "--group-by needs at least one mission field" in result.stderr
 
