@@ -83,7 +83,7 @@ def _import_target(target: str, kind: str, shown_name: str):
     if module_name.split(".")[0] in sys.stdlib_module_names:
         raise GuadalError(
             f"the {kind} plugin '{shown_name}' names '{module_name}', a module of Python's standard "
-            f"library, which holds no guadal plugin; give 'module:Class' of a {kind} plugin."
+            "library, which holds no guadal plugin; name the plugin's own module, as 'package.module:Class'."
         )
     try:
         module = importlib.import_module(module_name)

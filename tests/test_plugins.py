@@ -50,7 +50,7 @@ def test_validate_imports_no_module_of_the_standard_library(tmp_path, write_miss
     assert "Beautiful is better than ugly" not in result.stdout + result.stderr
     assert result.stderr.strip().splitlines() == [
         f"error: {path}: algorithm.type: the algorithm plugin 'this:x' names 'this', a module of Python's "
-        "standard library, which holds no guadal plugin; give 'module:Class' of a algorithm plugin."
+        "standard library, which holds no guadal plugin; name the plugin's own module, as 'package.module:Class'."
     ]
 
 
