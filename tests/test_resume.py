@@ -16,10 +16,10 @@ import time
 
 import pytest
 import yaml
-from fuzz_support import examples
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from support import ROOT, base_mission, run_cli
+from support.fuzz import examples
 
 from guadal_cli.errors import GuadalError
 from guadal_cli.mission import prepare

@@ -15,8 +15,8 @@ import sys
 import uuid
 
 import yaml
-from fleet_support import processes_marked, wait_for
 from support import ROOT, run_cli
+from support.fleet import processes_marked, wait_for
 
 from guadal_cli.mission import prepare
 from guadal_cli.runner import MissionRunner

@@ -8,9 +8,9 @@ sentence or read as a grid of the same cells.
 from __future__ import annotations
 
 import numpy as np
-from fuzz_support import assert_one_sentence, examples, time_limit
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support.fuzz import assert_one_sentence, examples, time_limit
 
 from guadal_cli.errors import GuadalError
 from guadal_cli.maps.discretize import DiscretizeOptions, discretize

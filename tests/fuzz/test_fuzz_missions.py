@@ -11,10 +11,10 @@ import copy
 
 import pytest
 import yaml
-from fuzz_support import NASTY, assert_one_sentence, examples, paths_of, set_at, time_limit
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from support import ROOT
+from support.fuzz import NASTY, assert_one_sentence, examples, paths_of, set_at, time_limit
 
 from guadal_cli.errors import GuadalError
 from guadal_cli.mission import prepare

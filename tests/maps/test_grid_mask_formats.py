@@ -9,8 +9,8 @@ import json
 
 import numpy as np
 import pytest
-from maps_support import bounds_of, bounds_text, disc, draw_grid
 from support import LAKE, run_cli
+from support.maps import bounds_of, bounds_text, disc, draw_grid
 from typer.testing import CliRunner
 
 from guadal_cli.app import app

@@ -6,6 +6,7 @@
 - ``support.vehicle``: emulator + bridge + planner client stacks for the bridge tests.
 - ``support.maps``: lakes of known geometry drawn as images, grids and outlines.
 - ``support.report``: real missions run in-process and a backend that reports GPS fixes.
+- ``support.fuzz``: how hard the property tests try, and their shared checks.
 """
 
 from __future__ import annotations

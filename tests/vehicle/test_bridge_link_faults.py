@@ -5,8 +5,8 @@ Once, the failsafe's HOLD written to a dead MAVLink link raised (``BrokenPipeErr
 logged a traceback on every tick.
 """
 
-from fleet_support import wait_for
-from vehicle_support import Stack
+from support.fleet import wait_for
+from support.vehicle import Stack
 
 from guadal_cli.channel.broker import start_broker
 
