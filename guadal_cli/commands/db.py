@@ -12,7 +12,6 @@ import typer
 
 from ..console import GuadalGroup, console, print_json, print_table
 from ..errors import GuadalError
-from ..records import fmt as cell_text
 
 app = typer.Typer(
     name="db",
@@ -199,10 +198,12 @@ def samples(
     """Every sample taken on a map, across runs, optionally in a time window and a box."""
     from ..db.queries import parse_bbox
     from ..db.queries import samples as query
+    from ..records import fmt as cell_text
 
     if file_format.lower() not in ("csv", "geojson"):
         raise GuadalError(f"samples format '{file_format}' is not known; use csv or geojson.")
-    found = query(_open(db), map, since=since, until=until, bbox=parse_bbox(bbox))
+    box = parse_bbox(bbox)  # a wrong box is named before the database is opened
+    found = query(_open(db), map, since=since, until=until, bbox=box)
     out = open(output, "w", newline="", encoding="utf-8") if output else sys.stdout
     try:
         if file_format.lower() == "csv":

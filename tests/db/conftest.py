@@ -1,8 +1,3 @@
-"""Makes db_support importable from the database tests and shares its fixtures."""
+"""The database tests' fixtures, from the support package."""
 
-import sys
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).parent))
-
-from db_support import db_url, pg_database  # noqa: E402, F401 - fixtures for this folder
+from support.db import db_url, pg_database  # noqa: F401 - fixtures for this folder

@@ -10,8 +10,8 @@ import time
 from pathlib import Path
 
 import yaml
-from db_support import RUN_FILES, assert_same_run_files
 from support import base_mission, run_cli
+from support.db import RUN_FILES, assert_same_run_files
 
 from guadal_cli.db import queries
 from guadal_cli.db.export import export_run

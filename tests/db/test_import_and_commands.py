@@ -8,8 +8,8 @@ import json
 
 import pytest
 import yaml
-from db_support import assert_same_run_files
 from support import ROOT, run_cli
+from support.db import assert_same_run_files
 
 from guadal_cli.db import queries
 from guadal_cli.db.export import export_run

@@ -5,8 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
-from db_support import assert_same_run_files
 from support import base_mission
+from support.db import assert_same_run_files
 
 from guadal_cli.db import queries
 from guadal_cli.db.export import export_run

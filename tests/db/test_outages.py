@@ -14,9 +14,9 @@ import uuid
 from pathlib import Path
 
 import yaml
-from db_support import assert_same_run_files
-from fleet_support import processes_marked
 from support import ROOT, base_mission
+from support.db import assert_same_run_files
+from support.fleet import processes_marked
 
 from guadal_cli.db import queries
 from guadal_cli.db.engine import make_engine, upgrade

@@ -16,8 +16,8 @@ import uuid
 from pathlib import Path
 
 import yaml
-from fleet_support import processes_marked
 from support import LAKE, base_mission, run_cli
+from support.fleet import processes_marked
 
 from guadal_cli.mission import prepare
 from guadal_cli.runner import MissionRunner

@@ -15,8 +15,8 @@ import sys
 
 import pytest
 import yaml
-from fleet_support import Inbox, login, wait_for
 from support import LAKE, base_mission
+from support.fleet import Inbox, login, wait_for
 
 from guadal_cli.channel import protocol as msg
 from guadal_cli.graph import NavGraph

@@ -148,9 +148,9 @@ def test_tables_written_to_the_report_folder(report_dir, runs_root):
     assert float(rows["greedy-1"]["rmse"]) == float(last["rmse"])
     data = json.loads((report_dir / "tables" / "report.json").read_text())
     assert sorted((g["level"], g["algorithm.type"], g["runs"]) for g in data["groups"]) == [
-        ("report_support:GpsTrackBackend", "greedy", 1),
         ("sim", "greedy", 2),
         ("sim", "lawnmower", 2),
+        ("support.report:GpsTrackBackend", "greedy", 1),
     ]
 
 

@@ -6,7 +6,7 @@ import statistics
 import subprocess
 
 import pytest
-from sitl_support import SITL_MODULE, command_long, connect, start_sitl, stop_sitl
+from support.sitl import SITL_MODULE, command_long, connect, start_sitl, stop_sitl
 
 from guadal_cli.errors import GuadalError
 from guadal_cli.sitl.ardupilot import RoverInstance, free_instances, instance_free, plan_rover_fleet

@@ -7,6 +7,7 @@
 - ``support.maps``: lakes of known geometry drawn as images, grids and outlines.
 - ``support.report``: real missions run in-process and a backend that reports GPS fixes.
 - ``support.fuzz``: how hard the property tests try, and their shared checks.
+- ``support.db``: a fresh SQLite or PostgreSQL database per test, and run files compared.
 """
 
 from __future__ import annotations
