@@ -130,6 +130,11 @@ class Bridge:
         self.want_mode: int | None = None
         self.mode_requests = 0
         self.mode_requested_at = 0.0
+        # A heartbeat confirms a wanted mode only if it left the autopilot after the last mode
+        # command was handled (its COMMAND_ACK came first on the ordered link), or long enough after
+        # it for a lost ack: an older one may show the mode from before a HOLD still on its way.
+        self.mode_sent_at = float("-inf")
+        self.mode_acked_at = float("-inf")
         self.want_armed = config.arm
         self.arm_requested_at = -1e9
         self._next_beat = 0.0
@@ -413,7 +418,7 @@ class Bridge:
         if self.want_mode is None:
             return
         s = self.link.snapshot()
-        if s.custom_mode == self.want_mode:
+        if s.custom_mode == self.want_mode and self._heartbeat_is_fresh(s):
             self.want_mode = None
             return
         now = time.monotonic()
@@ -429,7 +434,11 @@ class Bridge:
             return
         self.link.set_mode(self.want_mode)
         self.mode_requests += 1
-        self.mode_requested_at = now
+        self.mode_requested_at = self.mode_sent_at = now
+
+    def _heartbeat_is_fresh(self, s) -> bool:
+        acked = self.mode_acked_at >= self.mode_sent_at and s.last_heartbeat > self.mode_acked_at
+        return acked or s.last_heartbeat > self.mode_sent_at + MODE_RETRY_S
 
     def enter_hold(self, state: str = "hold") -> None:
         if self.goal is not None and self.goal.active:
@@ -494,6 +503,8 @@ class Bridge:
     def handle_mavlink(self, msg) -> None:
         kind = msg.get_type()
         if kind == "COMMAND_ACK":
+            if msg.command == mavlink.MAV_CMD_DO_SET_MODE:
+                self.mode_acked_at = time.monotonic()
             if msg.result in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
                 return
             if msg.command not in self.link.sent_commands:
@@ -632,7 +643,7 @@ class Bridge:
         if goal is None or not goal.active:
             return
         s = self.link.snapshot()
-        if s.custom_mode == MODE_GUIDED:
+        if s.custom_mode == MODE_GUIDED and self.want_mode is None:
             goal.seen_guided = True
         elif goal.seen_guided and self.want_mode is None:
             goal.status, goal.reason = (
