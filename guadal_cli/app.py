@@ -27,6 +27,7 @@ COMMANDS = (
     "report",
     "sweep",
     "db",
+    "serve",
 )
 
 app = typer.Typer(
