@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+from urllib.parse import parse_qs
 from importlib import resources
 
 import anyio
@@ -90,9 +91,10 @@ def create_app(
         return FileResponse(str(STATIC / "login.html"), headers={"Cache-Control": "no-store"})
 
     async def login(request: Request) -> Response:
-        form = await request.form()
-        secret = str(form.get("secret") or "")
-        target = str(form.get("next") or "/")
+        # the form is urlencoded: parsed here rather than adding a multipart parser for two fields
+        form = parse_qs((await request.body()).decode("utf-8", "replace"))
+        secret = (form.get("secret") or [""])[0]
+        target = (form.get("next") or ["/"])[0]
         if not target.startswith("/") or target.startswith("//"):
             target = "/"
         session = access.login(secret) if access.users else None

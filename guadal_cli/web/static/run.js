@@ -196,7 +196,7 @@ function drawHeader() {
   $("title").textContent = `${run.name} · ${run.algorithm} · ${run.level}`;
   $("status").textContent = run.status;
   $("status").className = "status " + run.status;
-  $("step").textContent = run.steps;
+  $("step").textContent = state.maxStep;
   $("controls").hidden = !(state.info.controls && state.info.user && run.status === "running");
   const slider = $("slider");
   slider.max = state.maxStep;
