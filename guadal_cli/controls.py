@@ -1,7 +1,8 @@
 """An operator's say over a running mission: pause, resume, abort, hold or release one boat.
 
-Requests arrive in inboxes (any object with ``poll()`` and ``answer()``): at remote levels, the
-fleet's signed control topic (``docs/protocol.md``). The runner calls :meth:`OperatorControls.check`
+Requests arrive in inboxes (any object with ``poll()`` and ``answer()``): the mission database's,
+filled by ``guadal serve --control``, and at remote levels the fleet's signed control topic
+(``docs/protocol.md``). The runner calls :meth:`OperatorControls.check`
 between hops, so a request takes effect at the next node: boats never stop between nodes, and
 at sim level a paused mission simply waits. Every request that is applied is recorded as a fleet
 event naming who asked and when.

@@ -351,10 +351,13 @@ class RunRecorder:
         stream.close()
 
     def record_event(self, kind: str, vehicle: int | None, time_s: float, message: str, detail: dict) -> None:
-        """A fleet event (an operator's control, ...), in the manifest at once."""
+        """A fleet event (an operator's control, ...): in the manifest now, and passed on to the sinks."""
+        events = self.manifest.setdefault("events", [])
         entry = {"kind": kind, "vehicle": vehicle, "time_s": time_s, "message": message, **detail}
-        self.manifest.setdefault("events", []).append(entry)
+        events.append(entry)
         self._write_manifest()
+        for sink in self.sinks:
+            sink.appended("events", len(events) - 1, [[kind, vehicle, time_s, message, entry]])
 
     def finish(self, status: str, error: str | None = None, extra: dict | None = None) -> None:
         for stream in (self.metrics, self.trajectory, self.measurements):

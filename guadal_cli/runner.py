@@ -302,7 +302,7 @@ class MissionRunner:
                 )
             fleet.reset(prep.initial_nodes)
             self.operator = OperatorControls(
-                [FleetInbox(fleet)], self.recorder.record_event, self.n, hold=fleet.hold
+                [FleetInbox(fleet), *self._control_inboxes()], self.recorder.record_event, self.n, hold=fleet.hold
             )
             first = fleet.take_measurement()
             self.environment.update(first)
@@ -344,6 +344,15 @@ class MissionRunner:
             if previous_term is not None:
                 signal.signal(signal.SIGTERM, previous_term)
         return RunResult(self.output, status, self.step, self.last_metrics)
+
+    def _control_inboxes(self) -> list:
+        """Where operators' requests come from: the run's database, when it has one."""
+        if not self.database:
+            return []
+        from .db.controls import ControlInbox
+        from .db.engine import make_engine
+
+        return [ControlInbox(make_engine(self.database), self.recorder.manifest["run_id"])]
 
     def _mission_loop(self, fleet: Fleet) -> None:
         done = {v: False for v in range(self.n)}

@@ -195,6 +195,26 @@ class FieldValue(Base):
     values: Mapped[dict] = mapped_column(JSON)  # column name -> value, in fields.csv's order
 
 
+class Control(Base):
+    """An operator's request to a running mission (from the web console), and what became of it.
+
+    The console inserts it; the mission polls for its run's unapplied requests, acts, and sets
+    ``applied_at`` and ``outcome``; the action itself is recorded as a fleet event.
+    """
+
+    __tablename__ = "controls"
+    __table_args__ = (Index("ix_controls_run_pending", "run_id", "applied_at"),)
+    id: Mapped[int] = mapped_column(RowId, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"))
+    action: Mapped[str] = mapped_column(String(20))
+    vehicle: Mapped[int | None] = mapped_column(Integer)
+    who: Mapped[str] = mapped_column(String(100))
+    origin: Mapped[str | None] = mapped_column(String(100))  # the address the request came from
+    requested_at: Mapped[_dt.datetime] = mapped_column(DateTime(timezone=True))
+    applied_at: Mapped[_dt.datetime | None] = mapped_column(DateTime(timezone=True))
+    outcome: Mapped[str | None] = mapped_column(Text)
+
+
 #: the tables a run's rows go to, by the name the recorder uses for them
 ROW_TABLES = {
     "metrics": Step,

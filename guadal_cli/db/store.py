@@ -34,6 +34,8 @@ def cell(value):
         return value or None  # an empty cell (a GPS fix has no node) is NULL
     if value is None:
         return None
+    if isinstance(value, (dict, list)):
+        return value  # an event's JSON detail is stored as it is
     if isinstance(value, numbers.Integral):  # bool and numpy integers too
         return int(value)
     return float(format(float(value), ".10g"))
