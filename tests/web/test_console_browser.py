@@ -1,0 +1,178 @@
+"""The console in a real browser (Debian's Chromium) while a real, slowed sim mission runs."""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+
+import pytest
+import yaml
+from console_support import SECRET, Console, browser, slow_mission, start_mission, wait_for
+
+from guadal_cli.db import queries
+from guadal_cli.db.queries import open_database
+from guadal_cli.web.security import TOKEN_ENV
+from support import ROOT
+
+pytest.importorskip("selenium")
+By = pytest.importorskip("selenium.webdriver.common.by").By
+ARTIFACTS = ROOT / "test-artifacts"
+
+
+def _rows(path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return [r for r in csv.DictReader(fh)]
+
+
+def _manifest(run_dir) -> dict:
+    return json.loads((run_dir / "manifest.json").read_text())
+
+
+def _control_events(run_dir) -> list[dict]:
+    return [e for e in _manifest(run_dir).get("events", []) if e["kind"] == "control"]
+
+
+def _click(driver, css: str) -> None:
+    """Click what the page may still be drawing: retried until the element is there and holds still."""
+    from selenium.common.exceptions import NoSuchElementException, StaleElementReferenceException
+
+    def attempt():
+        try:
+            driver.find_element(By.CSS_SELECTOR, css).click()
+            return True
+        except (NoSuchElementException, StaleElementReferenceException):
+            return False
+
+    wait_for(attempt, timeout=10, what=f"a clickable {css}")
+
+
+def _visible(driver, element_id: str) -> bool:
+    from selenium.common.exceptions import NoSuchElementException, StaleElementReferenceException
+
+    try:
+        return driver.find_element(By.ID, element_id).is_displayed()
+    except (NoSuchElementException, StaleElementReferenceException):
+        return False
+
+
+def _markers(driver) -> dict[str, tuple]:
+    out = {}
+    for marker in driver.find_elements(By.CSS_SELECTOR, ".leaflet-marker-icon.boat"):
+        name = next(c for c in marker.get_attribute("class").split() if c.startswith("boat-"))
+        out[name] = (marker.location["x"], marker.location["y"])
+    return out
+
+
+@pytest.fixture
+def console_and_browser(tmp_path):
+    db = f"sqlite:///{tmp_path / 'guadal.db'}"
+    console = Console(db, "--control", env={TOKEN_ENV: SECRET})
+    driver = browser()
+    yield db, console, driver
+    driver.quit()
+    output = console.stop()
+    assert SECRET not in output
+
+
+def test_a_running_mission_shows_live_and_obeys_pause_resume_hold_and_abort(
+    tmp_path, write_mission, console_and_browser
+):
+    db, console, driver = console_and_browser
+    driver.get(console.url + "/")
+    run_dir = tmp_path / "run"
+    mission = write_mission(slow_mission(db, delay_s=0.25, max_distance=2000.0))
+    proc = start_mission(mission, run_dir)
+    try:
+        # the new run appears in the open list without a reload, and its row opens its page
+        wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, "#runs tbody tr"), what="the run in the list")
+        _click(driver, "#runs tbody tr td:nth-child(2) a")
+        wait_for(lambda: len(_markers(driver)) == 3, what="three boat markers")
+
+        # the step counter follows the database: never ahead of it, and catching up with it
+        engine = open_database(db)
+        run_id = queries.list_runs(engine)[0]["id"]
+        shown = []
+        for _ in range(3):
+            in_db = queries.get_run(engine, run_id)["steps"]
+            page = wait_for(
+                lambda: (n := int(driver.find_element(By.ID, "step").text)) >= in_db and n,  # noqa: B023
+                what=f"the page to show step {in_db}",
+            )
+            assert page <= queries.get_run(engine, run_id)["steps"]
+            shown.append(page)
+            wait_for(lambda: queries.get_run(engine, run_id)["steps"] > page, what="the mission to go on")  # noqa: B023
+        assert shown == sorted(shown) and shown[0] < shown[-1]
+
+        # the boats' markers move on the map
+        before = _markers(driver)
+        wait_for(lambda: _markers(driver) != before, what="a boat marker to move")
+        ARTIFACTS.mkdir(exist_ok=True)
+        driver.save_screenshot(str(ARTIFACTS / "console-live.png"))
+
+        # an operator logs in through the form; the controls appear
+        driver.get(f"{console.url}/login?next=/runs/{run_id}")
+        driver.find_element(By.NAME, "secret").send_keys(SECRET)
+        driver.find_element(By.CSS_SELECTOR, "form button").click()
+        wait_for(lambda: _visible(driver, "controls"), what="the operator controls")
+
+        # pause: the mission stops between hops and records who paused it
+        _click(driver, '#controls button[data-action="pause"]')
+        wait_for(lambda: _control_events(run_dir), what="the pause in the run's events")
+        assert _control_events(run_dir)[0]["action"] == "pause"
+        assert _control_events(run_dir)[0]["who"] == "operator"
+        steps_paused = len(_rows(run_dir / "metrics.csv"))
+        time.sleep(1.5)  # several planner decisions' worth of time
+        assert len(_rows(run_dir / "metrics.csv")) == steps_paused
+
+        # resume: it goes on
+        _click(driver, '#controls button[data-action="resume"]')
+        wait_for(lambda: len(_rows(run_dir / "metrics.csv")) > steps_paused + 2, what="steps after resuming")
+
+        # hold boat 1: it stays on its node while the others sail on; release it again
+        _click(driver, 'button[data-action="hold"][data-vehicle="1"]')
+        wait_for(lambda: len(_control_events(run_dir)) == 3, what="the hold in the run's events")
+        held_from = int(_rows(run_dir / "metrics.csv")[-1]["step"])
+        wait_for(
+            lambda: int(_rows(run_dir / "metrics.csv")[-1]["step"]) > held_from + 4, what="steps while held"
+        )
+        _click(driver, 'button[data-action="release"][data-vehicle="1"]')
+        wait_for(lambda: len(_control_events(run_dir)) == 4, what="the release in the run's events")
+        released_at = int(_rows(run_dir / "metrics.csv")[-1]["step"])
+        plan = [r for r in _rows(run_dir / "trajectory.csv") if r["source"] == "plan"]
+        held_nodes = {
+            r["node"] for r in plan if r["vehicle"] == "1" and held_from < int(r["step"]) < released_at
+        }
+        others = {r["node"] for r in plan if r["vehicle"] == "0" and held_from < int(r["step"]) < released_at}
+        assert len(held_nodes) == 1 and len(others) > 1
+
+        # abort: the run ends interrupted, with its data, and says who ended it
+        _click(driver, '#controls button[data-action="abort"]')
+        assert proc.wait(timeout=60) == 0, proc.stderr.read()
+        manifest = _manifest(run_dir)
+        assert manifest["status"] == "interrupted"
+        assert manifest["error"] == "aborted by operator operator"
+        assert [e["action"] for e in _control_events(run_dir)] == [
+            "pause",
+            "resume",
+            "hold",
+            "release",
+            "abort",
+        ]
+        assert len(_rows(run_dir / "metrics.csv")) == manifest["steps"] + 1
+        wait_for(
+            lambda: driver.find_element(By.ID, "status").text == "interrupted", what="the page to say so"
+        )
+        db_events = [e for e in queries.events(engine, run_id) if e["kind"] == "control"]
+        assert [e["detail"]["action"] for e in db_events] == ["pause", "resume", "hold", "release", "abort"]
+        assert all(e["detail"]["who"] == "operator" for e in db_events)
+        status, body = console.call(f"/api/runs/{run_id}/control", {"action": "resume"}, token=SECRET)
+        assert (
+            status == 409
+            and body["error"] == f"run {run_id} is interrupted; only a running mission takes controls."
+        )
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert yaml.safe_load((run_dir / "mission.resolved.yaml").read_text())["output"]["database"] == db

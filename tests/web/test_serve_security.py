@@ -1,0 +1,109 @@
+"""Who may start, view and steer the console: refusals before anything listens, 401 without a login."""
+
+from __future__ import annotations
+
+import pytest
+from console_support import SECRET, Console
+
+from guadal_cli.errors import GuadalError
+from guadal_cli.web.security import TOKEN_ENV, Access, is_loopback, load_credentials
+from support import run_cli
+
+
+def test_loopback_addresses_are_recognised():
+    assert all(is_loopback(h) for h in ("127.0.0.1", "127.0.0.2", "localhost", "::1", "[::1]"))
+    assert not any(is_loopback(h) for h in ("0.0.0.0", "192.168.1.20", "::", "example.org"))
+
+
+def test_a_non_loopback_start_without_a_secret_is_refused_in_one_sentence(tmp_path):
+    proc = run_cli(
+        "serve",
+        "--db",
+        f"sqlite:///{tmp_path / 'g.db'}",
+        "--host",
+        "0.0.0.0",
+        "--port",
+        "0",
+        env={TOKEN_ENV: ""},
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    assert "refusing to listen on 0.0.0.0 without operator credentials" in proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+
+
+def test_controls_without_a_secret_are_refused_even_on_loopback(tmp_path):
+    proc = run_cli(
+        "serve",
+        "--db",
+        f"sqlite:///{tmp_path / 'g.db'}",
+        "--control",
+        "--port",
+        "0",
+        env={TOKEN_ENV: ""},
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    assert "operator controls need a login" in proc.stderr
+
+
+def test_secrets_file_names_users_and_refuses_short_or_missing_secrets(tmp_path, monkeypatch):
+    monkeypatch.delenv(TOKEN_ENV, raising=False)
+    good = tmp_path / "tokens"
+    good.write_text("# operators\nalice:alice-secret-123456\nbob:bob-secret-7890123\n")
+    assert load_credentials(good) == {"alice": "alice-secret-123456", "bob": "bob-secret-7890123"}
+    bare = tmp_path / "bare"
+    bare.write_text(SECRET + "\n")
+    assert load_credentials(bare) == {"operator": SECRET}
+    short = tmp_path / "short"
+    short.write_text("alice:abc\n")
+    with pytest.raises(GuadalError, match="line 1: the secret is too short"):
+        load_credentials(short)
+    with pytest.raises(GuadalError, match="cannot be read"):
+        load_credentials(tmp_path / "missing")
+    monkeypatch.setenv(TOKEN_ENV, SECRET)
+    assert load_credentials(None) == {"operator": SECRET}
+
+
+def test_sessions_and_bearer_secrets_identify_the_operator():
+    access = Access.decide("0.0.0.0", {"alice": "alice-secret-123456"}, controls=True)
+    assert not access.open_view
+    assert access.user_of("Bearer alice-secret-123456", None) == "alice"
+    assert access.user_of("Bearer wrong-secret-000000", None) is None
+    assert access.login("nope") is None
+    session = access.login("alice-secret-123456")
+    assert access.user_of(None, session) == "alice"
+    access.logout(session)
+    assert access.user_of(None, session) is None
+
+
+def test_viewing_is_open_on_loopback_but_controls_need_the_secret(tmp_path):
+    console = Console(f"sqlite:///{tmp_path / 'g.db'}", "--control", env={TOKEN_ENV: SECRET})
+    try:
+        status, body = console.call("/api/runs")
+        assert status == 200 and body == {"runs": []}
+        status, body = console.call("/api/runs/1/control", {"action": "pause"})
+        assert status == 401 and body["error"] == "operator controls need a login."
+        status, body = console.call("/api/runs/1/control", {"action": "pause"}, token="not-the-secret-at-all")
+        assert status == 401
+        status, body = console.call("/api/runs/1/control", {"action": "pause"}, token=SECRET)
+        assert status == 404 and body["error"] == "there is no run 1 in this database."
+        status, body = console.call("/api/runs?colour=red")
+        assert status == 400 and "unknown run filter 'colour'" in body["error"]
+    finally:
+        output = console.stop()
+    assert SECRET not in output
+
+
+def test_beyond_loopback_every_page_and_call_needs_the_login(tmp_path):
+    console = Console(f"sqlite:///{tmp_path / 'g.db'}", "--host", "0.0.0.0", env={TOKEN_ENV: SECRET})
+    console.url = console.url.replace("0.0.0.0", "127.0.0.1")
+    try:
+        assert console.call("/api/runs")[0] == 401
+        assert console.call("/api/runs/stream")[0] == 401
+        assert console.call("/api/runs", token=SECRET)[0] == 200
+        status, body = console.call("/api/runs/1/control", {"action": "pause"}, token=SECRET)
+        assert status == 403 and "without --control" in body["error"]
+    finally:
+        output = console.stop()
+    assert SECRET not in output
