@@ -350,6 +350,12 @@ class RunRecorder:
                 sink.appended("fields", 0, rows, columns)
         stream.close()
 
+    def share_fields(self, step: int, fields: dict) -> None:
+        """The model's maps now, for live viewers: to the sinks only (the directory keeps the final ones)."""
+        row = [step, {name: values.tolist() for name, values in fields.items()}]
+        for sink in self.sinks:
+            sink.appended("field_snapshots", step, [row])
+
     def record_event(self, kind: str, vehicle: int | None, time_s: float, message: str, detail: dict) -> None:
         """A fleet event (an operator's control, ...): in the manifest now, and passed on to the sinks."""
         events = self.manifest.setdefault("events", [])

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import signal
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,8 @@ from .planners.base import SEQUENTIAL
 from .records import RunRecorder, file_sha256
 from .resume import ReplayFleet, read_record
 
+#: live viewers get the model's maps at most this often (wall clock; the CSVs do not depend on it)
+_SHARE_FIELDS_EVERY_S = 1.0
 #: steps a vehicle may wait for a blocked node before it looks for another way round
 _WAIT_BEFORE_REROUTE = 2
 #: steps after which a blocked target is given up
@@ -116,6 +119,7 @@ class MissionRunner:
         self.samples = 0
         self.step = 0
         self.stop_reason = ""
+        self._share_fields_at = 0.0
 
     # --- bookkeeping -----------------------------------------------------------------------
     def _manifest(self) -> dict:
@@ -186,6 +190,9 @@ class MissionRunner:
                 ],
             )
         self.last_metrics = row
+        if self.recorder.sinks and time.monotonic() >= self._share_fields_at:
+            self._share_fields_at = time.monotonic() + _SHARE_FIELDS_EVERY_S
+            self.recorder.share_fields(self.step, self.environment.observation_fields())
         self.on_step(self.step, fleet)
 
     def _observation(self, fleet: Fleet, done: dict[int, bool]) -> Observation:

@@ -215,6 +215,20 @@ class Control(Base):
     outcome: Mapped[str | None] = mapped_column(Text)
 
 
+class FieldSnapshot(Base):
+    """The model's per-node maps while a mission runs, for live viewers (at most one a second).
+
+    Not part of the run directory, which keeps only the final maps (``fields``).
+    """
+
+    __tablename__ = "field_snapshots"
+    __table_args__ = (UniqueConstraint("run_id", "step"),)
+    id: Mapped[int] = mapped_column(RowId, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"))
+    step: Mapped[int] = mapped_column(Integer)
+    values: Mapped[dict] = mapped_column(JSON)  # field name -> [value per node], 6 significant digits
+
+
 #: the tables a run's rows go to, by the name the recorder uses for them
 ROW_TABLES = {
     "metrics": Step,
@@ -222,4 +236,5 @@ ROW_TABLES = {
     "trajectory": TrajectoryPoint,
     "events": Event,
     "fields": FieldValue,
+    "field_snapshots": FieldSnapshot,
 }

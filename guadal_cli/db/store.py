@@ -289,7 +289,7 @@ def save_batches(
     model = ROW_TABLES[table]
     key = (
         ["run_id", "step"]
-        if table == "metrics"
+        if table in ("metrics", "field_snapshots")
         else ["run_id", "node"]
         if table == "fields"
         else ["run_id", "seq"]
@@ -374,10 +374,23 @@ def _fields(run, first, rows, columns):
     return out
 
 
+def _field_snapshots(run, first, rows, columns):
+    """``[step, {name: [value per node]}]`` rows; 6 significant digits are plenty for a colour."""
+
+    def short(v):
+        return _json_safe(float(format(v, ".6g"))) if isinstance(v, float) else v
+
+    return [
+        dict(run_id=run.id, step=int(step), values={n: [short(v) for v in vs] for n, vs in values.items()})
+        for step, values in rows
+    ]
+
+
 _CONVERT = {
     "metrics": _metrics,
     "measurements": _measurements,
     "trajectory": _trajectory,
     "events": _events,
     "fields": _fields,
+    "field_snapshots": _field_snapshots,
 }

@@ -22,8 +22,8 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-from urllib.parse import parse_qs
 from importlib import resources
+from urllib.parse import parse_qs
 
 import anyio
 from starlette.applications import Starlette

@@ -13,10 +13,10 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from ..db import queries
-from ..db.models import Map, TrajectoryPoint
+from ..db.models import FieldSnapshot, Map, TrajectoryPoint
 from ..errors import GuadalError
 
 #: the newest runs the list shows (and streams); older ones stay reachable by their page
@@ -33,6 +33,7 @@ class Cursor:
     trajectory: int = 0
     measurements: int = 0
     events: int = 0
+    fields: int = 0  # the newest field snapshot sent
     run: str = ""  # the run's last update time: its status, step count or fields changed
 
     def text(self) -> str:
@@ -45,7 +46,7 @@ class Cursor:
             ids = [int(part) for part in (text or "").split(".")]
         except ValueError:
             return cls()
-        return cls(*ids) if len(ids) == 4 and min(ids) >= 0 else cls()
+        return cls(*ids) if len(ids) == 5 and min(ids) >= 0 else cls()
 
 
 def _finite(value):
@@ -160,15 +161,23 @@ class ConsoleReader:
         ids = queries.latest_ids(self.engine, run_id)
         if not ids["runs"]:
             raise LookupError(run_id)
+        with self.engine.connect() as conn:
+            snapshot = conn.execute(
+                select(func.max(FieldSnapshot.id)).where(FieldSnapshot.run_id == run_id)
+            ).scalar()
         stamp = str(ids["runs_updated_at"])
-        new = Cursor(ids["steps"], ids["trajectory"], ids["measurements"], ids["events"], stamp)
+        new = Cursor(
+            ids["steps"], ids["trajectory"], ids["measurements"], ids["events"], snapshot or 0, stamp
+        )
         if new == cursor:
             return {}, cursor
         out: dict = {}
+        if new.fields > cursor.fields:
+            out["fields"] = [self._snapshot(new.fields)]
         if stamp != cursor.run:
             run = self._run(run_id)
             out["run"] = run_summary(run)
-            if run["field_columns"]:
+            if run["field_columns"]:  # the final maps, once the run has written them
                 out["fields"] = [_fields(queries.fields(self.engine, run_id), run["steps"])]
         if new.steps > cursor.steps:
             out["steps"] = [
@@ -215,6 +224,14 @@ class ConsoleReader:
                 if r["id"] <= new.events
             ]
         return out, new
+
+    def _snapshot(self, snapshot_id: int) -> dict:
+        """One live snapshot of the model's maps (only the newest is sent: they are large)."""
+        with self.engine.connect() as conn:
+            step, values = conn.execute(
+                select(FieldSnapshot.step, FieldSnapshot.values).where(FieldSnapshot.id == snapshot_id)
+            ).one()
+        return {"step": step, "values": {n: [_finite(v) for v in vs] for n, vs in values.items()}}
 
 
 def _fields(rows: list[dict], step: int) -> dict:

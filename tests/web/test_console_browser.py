@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import time
 
 import pytest
@@ -107,6 +108,19 @@ def test_a_running_mission_shows_live_and_obeys_pause_resume_hold_and_abort(
         # the boats' markers move on the map
         before = _markers(driver)
         wait_for(lambda: _markers(driver) != before, what="a boat marker to move")
+
+        # the model's std arrives while the mission runs, and is redrawn as it learns
+        _click(driver, '#field option[value="std"]')
+        first = wait_for(
+            lambda: re.search(r"step (\d+)", driver.find_element(By.ID, "legend").text), what="a legend"
+        )
+        wait_for(
+            lambda: (
+                int(re.search(r"step (\d+)", driver.find_element(By.ID, "legend").text).group(1))
+                > int(first.group(1))
+            ),
+            what="a newer std map",
+        )
         ARTIFACTS.mkdir(exist_ok=True)
         driver.save_screenshot(str(ARTIFACTS / "console-live.png"))
 

@@ -226,6 +226,7 @@ function apply(update) {
   state.samples.push(...(update.measurements || []));
   state.events.push(...(update.events || []));
   state.fields.push(...(update.fields || []));
+  if (state.fields.length > 600) state.fields.splice(0, state.fields.length - 600); // a long mission's live maps
   updateBoats();
   for (const s of update.fields || []) {
     for (const name of Object.keys(s.values)) {

@@ -1,4 +1,4 @@
-"""Operator controls: requests from the web console to a running mission.
+"""The web console's tables: operator controls, and the model's maps while a mission runs.
 
 Revision ID: 0002
 Revises: 0001
@@ -31,8 +31,21 @@ def upgrade() -> None:
         sa.PrimaryKeyConstraint("id", name=op.f("pk_controls")),
     )
     op.create_index("ix_controls_run_pending", "controls", ["run_id", "applied_at"], unique=False)
+    op.create_table(
+        "field_snapshots",
+        sa.Column("id", sa.BigInteger().with_variant(sa.Integer(), "sqlite"), nullable=False),
+        sa.Column("run_id", sa.BigInteger().with_variant(sa.Integer(), "sqlite"), nullable=False),
+        sa.Column("step", sa.Integer(), nullable=False),
+        sa.Column("values", sa.JSON(), nullable=False),
+        sa.ForeignKeyConstraint(
+            ["run_id"], ["runs.id"], name=op.f("fk_field_snapshots_run_id_runs"), ondelete="CASCADE"
+        ),
+        sa.PrimaryKeyConstraint("id", name=op.f("pk_field_snapshots")),
+        sa.UniqueConstraint("run_id", "step", name=op.f("uq_field_snapshots_run_id_step")),
+    )
 
 
 def downgrade() -> None:
+    op.drop_table("field_snapshots")
     op.drop_index("ix_controls_run_pending", table_name="controls")
     op.drop_table("controls")
