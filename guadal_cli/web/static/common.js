@@ -23,7 +23,7 @@ const guadal = {
   stream(url, handlers) {
     const link = document.getElementById("link");
     const source = new EventSource(url, { withCredentials: true });
-    source.onopen = () => { if (link) { link.textContent = "live"; link.classList.remove("down"); } };
+    source.onopen = () => { if (link) { link.textContent = "connected"; link.classList.remove("down"); } };
     source.onerror = () => { if (link) { link.textContent = "reconnecting…"; link.classList.add("down"); } };
     for (const [name, fn] of Object.entries(handlers)) {
       source.addEventListener(name, (e) => fn(JSON.parse(e.data)));
@@ -39,7 +39,7 @@ const guadal = {
       el.innerHTML = "";
       const form = document.createElement("form");
       form.method = "post"; form.action = "/logout"; form.style.display = "inline";
-      form.innerHTML = `operator <b>${guadal.esc(me.user)}</b> <button type="submit">log out</button>`;
+      form.innerHTML = `logged in as <b>${guadal.esc(me.user)}</b> <button type="submit">log out</button>`;
       el.appendChild(form);
     } else if (me.login_available) {
       el.innerHTML = `<a href="/login?next=${encodeURIComponent(location.pathname)}">log in</a> (viewing read-only)`;
