@@ -14,7 +14,7 @@ from pathlib import Path
 from ..errors import GuadalError
 from .security import Access, is_loopback, load_credentials
 
-LOOPBACK_NAMES = ["127.0.0.1", "localhost", "::1", "[::1]"]
+LOOPBACK_NAMES = ["127.0.0.1", "localhost"]
 
 
 @dataclass
@@ -52,7 +52,10 @@ class ConsoleServer:
         except Exception as exc:  # the driver's own error: unreachable server, unreadable file
             raise GuadalError(f"database {redact(url)} cannot be opened ({type(exc).__name__}).") from exc
         reader = ConsoleReader(engine)
-        allowed = LOOPBACK_NAMES + [host] if is_loopback(host) else None
+        # on loopback, only loopback names in the Host header: a page elsewhere cannot reach the
+        # console by pointing its own name at 127.0.0.1 (DNS rebinding). Starlette's check reads
+        # IPv4 and names only, so an IPv6 loopback console goes without it.
+        allowed = LOOPBACK_NAMES + [host] if is_loopback(host) and ":" not in host else None
         app = create_app(reader, access, controls=control, tiles=tiles, allowed_hosts=allowed)
         return cls(host=host, port=port, app=app, database_label=redact(url) or "")
 

@@ -52,10 +52,10 @@ class Console:
         self.output += rest or ""
         return self.output
 
-    def call(self, path: str, body=None, token: str | None = None, method: str | None = None):
+    def call(self, path: str, body=None, token: str | None = None, headers: dict | None = None):
         """(status, parsed JSON or raw bytes) of one HTTP request."""
         data = json.dumps(body).encode() if body is not None else None
-        request = urllib.request.Request(self.url + path, data=data, method=method)
+        request = urllib.request.Request(self.url + path, data=data, headers=headers or {})
         if data is not None:
             request.add_header("Content-Type", "application/json")
         if token:

@@ -10,11 +10,11 @@ import time
 import pytest
 import yaml
 from console_support import SECRET, Console, browser, slow_mission, start_mission, wait_for
+from support import ROOT
 
 from guadal_cli.db import queries
 from guadal_cli.db.queries import open_database
 from guadal_cli.web.security import TOKEN_ENV
-from support import ROOT
 
 pytest.importorskip("selenium")
 By = pytest.importorskip("selenium.webdriver.common.by").By

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 from console_support import SECRET, Console
+from support import run_cli
 
 from guadal_cli.errors import GuadalError
 from guadal_cli.web.security import TOKEN_ENV, Access, is_loopback, load_credentials
-from support import run_cli
 
 
 def test_loopback_addresses_are_recognised():
@@ -90,6 +90,8 @@ def test_viewing_is_open_on_loopback_but_controls_need_the_secret(tmp_path):
         assert status == 404 and body["error"] == "there is no run 1 in this database."
         status, body = console.call("/api/runs?colour=red")
         assert status == 400 and "unknown run filter 'colour'" in body["error"]
+        # a page elsewhere that points its own name at 127.0.0.1 (DNS rebinding) is refused
+        assert console.call("/api/runs", headers={"Host": "attacker.example"})[0] == 400
     finally:
         output = console.stop()
     assert SECRET not in output
