@@ -23,7 +23,7 @@ import asyncio
 import json
 import logging
 from importlib import resources
-from urllib.parse import parse_qs
+from urllib.parse import parse_qs, quote
 
 import anyio
 from starlette.applications import Starlette
@@ -51,13 +51,6 @@ def _error(status: int, sentence: str) -> JSONResponse:
     return JSONResponse({"error": sentence}, status_code=status)
 
 
-def _run_id(request: Request) -> int | None:
-    try:
-        return int(request.path_params["run_id"])
-    except (KeyError, ValueError):
-        return None
-
-
 def _sse(event: str, data, event_id: str | None = None) -> bytes:
     head = f"id: {event_id}\n" if event_id else ""
     return f"{head}event: {event}\ndata: {json.dumps(data, separators=(',', ':'), default=str)}\n\n".encode()
@@ -82,7 +75,7 @@ def create_app(
     def page(name: str):
         async def endpoint(request: Request) -> Response:
             if not may_view(request):
-                return RedirectResponse(f"/login?next={request.url.path}", status_code=303)
+                return RedirectResponse(f"/login?next={quote(request.url.path)}", status_code=303)
             return FileResponse(str(STATIC / name), headers={"Cache-Control": "no-store"})
 
         return endpoint
@@ -101,7 +94,7 @@ def create_app(
         if session is None:
             await asyncio.sleep(0.5)  # slows guessing; the reason is never logged with the secret
             log.warning("failed console login from %s", request.client.host if request.client else "?")
-            return RedirectResponse(f"/login?failed=1&next={target}", status_code=303)
+            return RedirectResponse(f"/login?failed=1&next={quote(target)}", status_code=303)
         response = RedirectResponse(target, status_code=303)
         response.set_cookie(SESSION_COOKIE, session, httponly=True, samesite="strict", path="/")
         log.info("operator %s logged in", access.sessions[session])
@@ -153,13 +146,13 @@ def create_app(
     async def run_info(request: Request) -> Response:
         if not may_view(request):
             return _error(401, "log in to view this console.")
-        run_id = _run_id(request)
+        run_id = request.path_params["run_id"]
         try:
-            info = await anyio.to_thread.run_sync(reader.run, run_id) if run_id is not None else None
+            info = await anyio.to_thread.run_sync(reader.run, run_id)
         except LookupError:
             info = None
         if info is None:
-            return _error(404, f"there is no run {request.path_params['run_id']} in this database.")
+            return _error(404, f"there is no run {run_id} in this database.")
         info.update(
             user=user(request),
             controls=controls,
@@ -175,9 +168,7 @@ def create_app(
     async def run_stream(request: Request) -> Response:
         if not may_view(request):
             return _error(401, "log in to view this console.")
-        run_id = _run_id(request)
-        if run_id is None:
-            return _error(404, f"there is no run {request.path_params['run_id']} in this database.")
+        run_id = request.path_params["run_id"]
         cursor = Cursor.parse(request.headers.get("last-event-id"))
         try:
             first, cursor = await anyio.to_thread.run_sync(reader.changes, run_id, cursor)
@@ -204,7 +195,7 @@ def create_app(
     async def download(request: Request) -> Response:
         if not may_view(request):
             return _error(401, "log in to view this console.")
-        run_id, kind = _run_id(request), request.path_params["kind"]
+        run_id, kind = request.path_params["run_id"], request.path_params["kind"]
         if kind not in DOWNLOADS:
             return _error(404, f"no download '{kind}'; downloads are {', '.join(DOWNLOADS)}.")
         from .downloads import build_download
@@ -212,7 +203,7 @@ def create_app(
         try:
             name, media, body = await anyio.to_thread.run_sync(build_download, reader.engine, run_id, kind)
         except LookupError:
-            return _error(404, f"there is no run {request.path_params['run_id']} in this database.")
+            return _error(404, f"there is no run {run_id} in this database.")
         except GuadalError as exc:
             return _error(409, str(exc))
         return Response(
@@ -225,7 +216,7 @@ def create_app(
             return _error(401, "operator controls need a login.")
         if not controls:
             return _error(403, "this console was started without --control; it only shows missions.")
-        run_id = _run_id(request)
+        run_id = request.path_params["run_id"]
         try:
             body = await request.json()
         except (json.JSONDecodeError, UnicodeDecodeError):
@@ -233,12 +224,10 @@ def create_app(
         origin = request.client.host if request.client else None
         try:
             record = await anyio.to_thread.run_sync(
-                lambda: request_control(
-                    reader.engine, run_id if run_id is not None else -1, body, who, origin
-                )
+                lambda: request_control(reader.engine, run_id, body, who, origin)
             )
         except LookupError:
-            return _error(404, f"there is no run {request.path_params['run_id']} in this database.")
+            return _error(404, f"there is no run {run_id} in this database.")
         except ControlRefused as exc:
             return _error(409, str(exc))
         except GuadalError as exc:
@@ -248,17 +237,17 @@ def create_app(
 
     routes = [
         Route("/", page("index.html")),
-        Route("/runs/{run_id}", page("run.html")),
+        Route("/runs/{run_id:int}", page("run.html")),
         Route("/login", login_page, methods=["GET"]),
         Route("/login", login, methods=["POST"]),
         Route("/logout", logout, methods=["POST"]),
         Route("/api/me", me),
         Route("/api/runs", runs),
         Route("/api/runs/stream", runs_stream),
-        Route("/api/runs/{run_id}", run_info),
-        Route("/api/runs/{run_id}/stream", run_stream),
-        Route("/api/runs/{run_id}/download/{kind}", download),
-        Route("/api/runs/{run_id}/control", control, methods=["POST"]),
+        Route("/api/runs/{run_id:int}", run_info),
+        Route("/api/runs/{run_id:int}/stream", run_stream),
+        Route("/api/runs/{run_id:int}/download/{kind}", download),
+        Route("/api/runs/{run_id:int}/control", control, methods=["POST"]),
         Mount("/static", StaticFiles(directory=str(STATIC)), name="static"),
     ]
 

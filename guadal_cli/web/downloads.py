@@ -35,10 +35,8 @@ def _zip(files: list[Path], root: Path) -> bytes:
     return buffer.getvalue()
 
 
-def build_download(engine, run_id: int | None, kind: str) -> tuple[str, str, bytes]:
+def build_download(engine, run_id: int, kind: str) -> tuple[str, str, bytes]:
     """``(file name, media type, content)`` of one download; LookupError for an unknown run."""
-    if run_id is None:
-        raise LookupError(run_id)
     try:
         run = get_run(engine, run_id)
     except GuadalError as exc:

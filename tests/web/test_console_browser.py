@@ -185,6 +185,16 @@ def test_a_running_mission_shows_live_and_obeys_pause_resume_hold_and_abort(
             status == 409
             and body["error"] == f"run {run_id} is interrupted; only a running mission takes controls."
         )
+        status, body = console.call(f"/api/runs/{run_id}/control", {"action": "explode"}, token=SECRET)
+        assert status == 400
+        assert (
+            body["error"]
+            == "control action 'explode' is not known; use one of pause, resume, abort, hold, release."
+        )
+        status, body = console.call(
+            f"/api/runs/{run_id}/control", {"action": "hold", "vehicle": 7}, token=SECRET
+        )
+        assert status == 400 and body["error"] == "'hold' needs a vehicle number from 0 to 2 (got 7)."
     finally:
         if proc.poll() is None:
             proc.kill()
