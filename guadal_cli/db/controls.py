@@ -11,29 +11,16 @@ from __future__ import annotations
 
 import datetime as _dt
 import time
-from dataclasses import dataclass
 
 from sqlalchemy import select, update
 
+from ..controls import ACTIONS, VEHICLE_ACTIONS, ControlRequest
 from ..errors import GuadalError
 from .models import Control, Run
-
-#: what an operator may ask of a running mission; hold and release name a vehicle
-ACTIONS = ("pause", "resume", "abort", "hold", "release")
-VEHICLE_ACTIONS = ("hold", "release")
 
 
 class ControlRefused(GuadalError):
     """A well-formed request the run cannot take now (it is not running)."""
-
-
-@dataclass(frozen=True)
-class ControlRequest:
-    id: int
-    action: str
-    vehicle: int | None
-    who: str
-    requested_at: str
 
 
 def _now() -> _dt.datetime:
