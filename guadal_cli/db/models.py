@@ -210,8 +210,8 @@ class Control(Base):
     vehicle: Mapped[int | None] = mapped_column(Integer)
     who: Mapped[str] = mapped_column(String(100))
     origin: Mapped[str | None] = mapped_column(String(100))  # the address the request came from
-    requested_at: Mapped[_dt.datetime] = mapped_column(DateTime(timezone=True))
-    applied_at: Mapped[_dt.datetime | None] = mapped_column(DateTime(timezone=True))
+    requested_at: Mapped[_dt.datetime] = mapped_column(DateTime())  # UTC, as every time here
+    applied_at: Mapped[_dt.datetime | None] = mapped_column(DateTime())
     outcome: Mapped[str | None] = mapped_column(Text)
 
 

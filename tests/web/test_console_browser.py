@@ -57,11 +57,17 @@ def _visible(driver, element_id: str) -> bool:
         return False
 
 
-def _markers(driver) -> dict[str, tuple]:
+def _markers(driver) -> dict[str, tuple] | None:
+    """Each boat marker's place on the screen; None while the page is redrawing one."""
+    from selenium.common.exceptions import StaleElementReferenceException
+
     out = {}
-    for marker in driver.find_elements(By.CSS_SELECTOR, ".leaflet-marker-icon.boat"):
-        name = next(c for c in marker.get_attribute("class").split() if c.startswith("boat-"))
-        out[name] = (marker.location["x"], marker.location["y"])
+    try:
+        for marker in driver.find_elements(By.CSS_SELECTOR, ".leaflet-marker-icon.boat"):
+            name = next(c for c in marker.get_attribute("class").split() if c.startswith("boat-"))
+            out[name] = (marker.location["x"], marker.location["y"])
+    except StaleElementReferenceException:
+        return None
     return out
 
 
@@ -88,7 +94,7 @@ def test_a_running_mission_shows_live_and_obeys_pause_resume_hold_and_abort(
         # the new run appears in the open list without a reload, and its row opens its page
         wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, "#runs tbody tr"), what="the run in the list")
         _click(driver, "#runs tbody tr td:nth-child(2) a")
-        wait_for(lambda: len(_markers(driver)) == 3, what="three boat markers")
+        wait_for(lambda: len(_markers(driver) or {}) == 3, what="three boat markers")
 
         # the step counter follows the database: never ahead of it, and catching up with it
         engine = open_database(db)
@@ -106,8 +112,8 @@ def test_a_running_mission_shows_live_and_obeys_pause_resume_hold_and_abort(
         assert shown == sorted(shown) and shown[0] < shown[-1]
 
         # the boats' markers move on the map
-        before = _markers(driver)
-        wait_for(lambda: _markers(driver) != before, what="a boat marker to move")
+        before = wait_for(lambda: _markers(driver), what="the boat markers")
+        wait_for(lambda: _markers(driver) not in (None, before), what="a boat marker to move")
 
         # the model's std arrives while the mission runs, and is redrawn as it learns
         _click(driver, '#field option[value="std"]')
