@@ -309,7 +309,7 @@ class MissionRunner:
                 )
             fleet.reset(prep.initial_nodes)
             self.operator = OperatorControls(
-                [FleetInbox(fleet), *self._control_inboxes()], self.recorder.record_event, self.n, hold=fleet.hold
+                self._control_inboxes(fleet), self.recorder.record_event, self.n, hold=fleet.hold
             )
             first = fleet.take_measurement()
             self.environment.update(first)
@@ -352,14 +352,16 @@ class MissionRunner:
                 signal.signal(signal.SIGTERM, previous_term)
         return RunResult(self.output, status, self.step, self.last_metrics)
 
-    def _control_inboxes(self) -> list:
-        """Where operators' requests come from: the run's database, when it has one."""
-        if not self.database:
-            return []
-        from .db.controls import ControlInbox
-        from .db.engine import make_engine
+    def _control_inboxes(self, fleet: Fleet) -> list:
+        """Where operators' requests come from: the run's database (the web console), when it has
+        one, and the fleet's own control topic at remote levels."""
+        inboxes: list = [FleetInbox(fleet)]
+        if self.database:
+            from .db.controls import ControlInbox
+            from .db.engine import make_engine
 
-        return [ControlInbox(make_engine(self.database), self.recorder.manifest["run_id"])]
+            inboxes.append(ControlInbox(make_engine(self.database), self.recorder.manifest["run_id"]))
+        return inboxes
 
     def _mission_loop(self, fleet: Fleet) -> None:
         done = {v: False for v in range(self.n)}
