@@ -5,6 +5,5 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-sys.path.insert(0, str(Path(__file__).parents[1] / "db"))
 
-from db_support import db_url, pg_database  # noqa: E402, F401 - fixtures for this folder
+from support.db import db_url, pg_database  # noqa: E402, F401 - fixtures for this folder
