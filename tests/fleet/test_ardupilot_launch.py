@@ -98,8 +98,12 @@ def test_a_mission_on_ardupilot_sitl_launches_one_ardurover_per_boat_as_sim_vehi
         gps = [r for r in csv.DictReader(fh) if r["source"] == "gps" and r["vehicle"] == "0"]
     times = [float(r["time_s"]) for r in gps]
     gaps = [b - a for a, b in zip(times, times[1:])]
-    # one fix per simulated second of the boat's clock, at speed-up 20 as at any other
-    assert len(gaps) > 10 and min(gaps) > 0.99 and statistics.median(gaps) < 1.2
+    # one fix per simulated second of the boat's clock, at speed-up 20 as at any other: the track
+    # keeps the first fix of each period on a fixed grid, so a fix that came a little late makes its
+    # gap to the next one a little short, but no period ever holds two fixes
+    periods = [round(t) for t in times]
+    assert len(gaps) > 10 and all(b > a for a, b in zip(periods, periods[1:]))
+    assert statistics.median(gaps) < 1.2
 
 
 def test_ardupilot_without_its_binary_is_one_sentence(tmp_path):
