@@ -456,6 +456,12 @@ def prepare_dict(
         raise exc.within("map.path", file=path) from None
     graph = NavGraph(map_)
     initial_nodes = resolve_initial_nodes(mission.fleet, graph, where)
+    try:
+        alg_cfg = alg_cls.for_mission(
+            alg_cfg, mission=mission, graph=graph, mode=mode, base_dir=base_dir, provides=env_cls.provides
+        )
+    except GuadalError as exc:
+        raise exc.within("algorithm", file=path) from None
     env_seed, planner_seed = mission_seeds(mission.seed)
     try:
         environment = env_cls(env_cfg, graph, base_dir=base_dir)

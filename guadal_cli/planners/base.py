@@ -42,6 +42,14 @@ class Planner(ABC):
     def __init__(self, config: BaseModel | None = None):
         self.config = config if config is not None else self.Config()
 
+    @classmethod
+    def for_mission(cls, config: BaseModel, *, mission, graph: NavGraph, mode: str, base_dir, provides):
+        """The config to run ``mission`` with, checked against what only the mission knows (its
+        map, fleet, folder and environment): called once when the mission is prepared, so that
+        ``guadal validate`` catches what ``Config`` alone cannot. Raise :class:`GuadalError`
+        (its ``field`` relative to the algorithm section) to refuse it. Default: unchanged."""
+        return config
+
     def reset(self, graph: NavGraph, n_vehicles: int, mode: str, seed: int) -> None:
         """Forget the last mission; seed the generator."""
         self.graph_ = graph
