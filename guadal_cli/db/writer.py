@@ -6,8 +6,9 @@ most every ``flush_every_s`` (so a real boat's sample is in the database within 
 when the database is slow, locked or unreachable it appends the batch to
 ``RUN/database.spool.jsonl`` and retries every ``retry_every_s``. The spool is replayed in order
 once the database answers, then removed. Keys are idempotent, so a batch delivered twice (the
-connection died after the commit) is harmless. What is still spooled when the mission ends
-stays on disk; ``guadal db sync RUN`` delivers it from the CSVs.
+connection died after the commit) is harmless. When the mission ends the writer keeps trying
+for ``patience_s`` (a lock held by another process is usually gone in seconds); what is still
+spooled after that stays on disk, and ``guadal db sync RUN`` delivers it from the CSVs.
 """
 
 from __future__ import annotations
@@ -32,6 +33,18 @@ log = logging.getLogger(__name__)
 #: writers whose thread may still be delivering; the process waits for them when it exits
 _LIVE: weakref.WeakSet = weakref.WeakSet()
 
+#: one lock per database URL in this process. A run's writer goes on after its mission returns,
+#: so missions run back to back (a sweep worker) leave several writers on one SQLite file; left
+#: to SQLite's busy handler they starve each other past any timeout. Taking turns here, they
+#: queue fairly, and only other processes are left to the busy timeout.
+_TURNS: dict[str, threading.Lock] = {}
+_TURNS_GUARD = threading.Lock()
+
+
+def _turn(url: str) -> threading.Lock:
+    with _TURNS_GUARD:
+        return _TURNS.setdefault(url, threading.Lock())
+
 
 @atexit.register
 def _drain_live_writers() -> None:
@@ -54,6 +67,7 @@ class DatabaseWriter(RecordSink):
         flush_every_s: float = 0.2,
         retry_every_s: float = 1.0,
         close_timeout_s: float = 15.0,
+        patience_s: float = 10.0,
     ):
         check_url(url)
         self.url = url
@@ -61,6 +75,7 @@ class DatabaseWriter(RecordSink):
         self.flush_every_s = flush_every_s
         self.retry_every_s = retry_every_s
         self.close_timeout_s = close_timeout_s
+        self.patience_s = patience_s
         self.shown_url = redact(url)
         self._queue: queue.Queue = queue.Queue(maxsize=self.queue_size)
         self._spool_lock = threading.Lock()
@@ -144,8 +159,11 @@ class DatabaseWriter(RecordSink):
     # --- writer thread side ------------------------------------------------------------------
     def _loop(self) -> None:
         retry_at = 0.0
+        give_up_at = None
         while True:
             stopping = self._stop.is_set()
+            if stopping and give_up_at is None:
+                give_up_at = time.monotonic() + self.patience_s
             batch = self._take(0.05 if stopping else self.flush_every_s)
             if batch and self._spool_size():
                 self._spool(batch)  # keep the order: older rows are waiting in the spool
@@ -156,7 +174,12 @@ class DatabaseWriter(RecordSink):
             if self._spool_size() and (time.monotonic() >= retry_at or last_call):
                 if not self._replay_spool():
                     retry_at = time.monotonic() + self.retry_every_s
-                    if last_call:  # still away when the mission ends: the spool stays for 'db sync'
+                    if last_call and time.monotonic() < give_up_at:
+                        # a lock held by another process (a sweep's other worker, an import) is
+                        # usually gone in seconds: keep trying a while before leaving it to the user
+                        time.sleep(self.retry_every_s)
+                        continue
+                    if last_call:  # still away: the spool stays for 'db sync'
                         log.warning(
                             "database %s did not take every row of the run (%s); they are kept in the "
                             "run directory: run 'guadal db sync %s' when the database is back.",
@@ -194,7 +217,7 @@ class DatabaseWriter(RecordSink):
             if not self._schema_checked:
                 ensure_schema(self.engine_)
                 self._schema_checked = True
-            with self.engine_.begin() as conn:
+            with _turn(self.url), self.engine_.begin() as conn:
                 self._apply(conn, items)
                 if self.run_ is not None:
                     notify(conn, self.run_)

@@ -42,7 +42,7 @@ class SqliteLock:
         self.conn = None
 
     def start(self):
-        self.conn = sqlite3.connect(self.path, isolation_level=None, timeout=30)
+        self.conn = sqlite3.connect(self.path, isolation_level=None, timeout=30, check_same_thread=False)
         self.conn.execute("BEGIN EXCLUSIVE")
 
     def stop(self):
@@ -136,4 +136,31 @@ def test_a_full_queue_spools_instead_of_waiting(tmp_path, monkeypatch):
     assert spooled, "the one-item queue overflowed into the spool"
     engine = queries.open_database(url)
     run = queries.get_run(engine, "run")
+    assert_same_run_files(export_run(engine, run["id"], tmp_path / "exported"), runner.output)
+
+
+def test_a_lock_held_past_the_missions_end_still_delivers_every_row(tmp_path):
+    """Another process (a sweep's other worker, an import) holds the SQLite file for seconds
+    while a mission ends: the writer keeps trying a while, so no 'db sync' is needed."""
+    import threading
+
+    url = f"sqlite:///{tmp_path / 'busy.db'}"
+    upgrade(make_engine(url))
+    lock = SqliteLock(url)
+    path = tmp_path / "mission.yaml"
+    path.write_text(yaml.safe_dump(base_mission()))
+
+    def on_step(step, fleet):
+        if step == 2:
+            lock.start()
+
+    runner = MissionRunner(prepare(path), output=tmp_path / "run", on_step=on_step, database=url)
+    assert runner.run().status == "complete"
+    threading.Timer(5.0, lock.stop).start()  # longer than one busy wait and one retry
+    writer = runner.recorder.sinks[0]
+    writer.close()
+    assert not writer.spool_path_.exists(), "rows were left for 'db sync'"
+    engine = queries.open_database(url)
+    run = queries.get_run(engine, "run")
+    assert run["status"] == "complete"
     assert_same_run_files(export_run(engine, run["id"], tmp_path / "exported"), runner.output)

@@ -126,6 +126,35 @@ def test_same_final_metrics_and_files_whatever_the_worker_count(tmp_path):
         assert run_bytes(tmp_path / "w1" / entry["run_dir"]) == run_bytes(tmp_path / "w2" / entry["run_dir"])
 
 
+def test_two_workers_index_every_run_whole_in_one_sqlite_file(tmp_path):
+    """Workers of one sweep, and the finished missions' writers inside each worker, share the
+    default SQLite file: every run must reach it whole, none left spooled for 'db sync'."""
+    import sqlite3
+
+    path = write_sweep(
+        tmp_path, seeds="1..8", base=base_mission(fleet={"vehicles": 3, "max_distance": 250.0})
+    )
+    proc = run_cli("sweep", path, "--workers", "2")
+    assert proc.returncode == 0, proc.stderr
+    assert "spooling" not in proc.stderr and "did not take every row" not in proc.stderr
+    out = tmp_path / "out"
+    databases = list(out.rglob("guadal.db"))
+    assert len(databases) == 1, databases
+    db = sqlite3.connect(databases[0])
+    entries = manifest(out)["combinations"]
+    assert len(entries) == 16
+    for entry in entries:
+        run_dir = out / entry["run_dir"]
+        assert not list(run_dir.glob("*.spool*")), f"{run_dir.name} left rows spooled"
+        uid = json.loads((run_dir / "manifest.json").read_text())["run_id"]
+        run_id, status = db.execute("SELECT id, status FROM runs WHERE uid = ?", (uid,)).fetchone()
+        assert status == "complete"
+        for table, name in (("steps", "metrics.csv"), ("measurements", "measurements.csv")):
+            rows = len((run_dir / name).read_text().splitlines()) - 1
+            (stored,) = db.execute(f"SELECT count(*) FROM {table} WHERE run_id = ?", (run_id,)).fetchone()
+            assert stored == rows, f"{run_dir.name}: {table} has {stored} rows, {name} {rows}"
+
+
 def test_validate_counts_every_combination_and_names_the_bad_one(tmp_path):
     path = write_sweep(tmp_path, zip={"fleet.max_distance": [30, 40, 50]}, seeds="1..10")
     proc = run_cli("sweep", "validate", path, "--json")
