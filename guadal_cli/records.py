@@ -47,6 +47,20 @@ RUN_FORMAT = "guadal-run"
 RUN_VERSION = 1
 TRAJECTORY_COLUMNS = ["step", "vehicle", "node", "row", "col", "lat", "lon", "distance", "source", "time_s"]
 MEASUREMENT_COLUMNS = ["step", "vehicle", "node", "lat", "lon", "value", "time_s"]
+#: vehicles.csv: each vehicle's state for operators (``guadal_cli.fleet.status`` says when a row is due)
+VEHICLE_COLUMNS = [
+    "step",
+    "vehicle",
+    "time_s",
+    "remaining",
+    "mode",
+    "armed",
+    "battery",
+    "link_age_s",
+    "fault",
+]
+#: targets.csv: the node each vehicle was sent to at a planner decision (step = its first hop's)
+TARGET_COLUMNS = ["step", "vehicle", "node", "lat", "lon", "time_s"]
 
 
 def fmt(value) -> str:
@@ -140,6 +154,8 @@ CSV_FILES = {
     "metrics.csv": None,
     "trajectory.csv": TRAJECTORY_COLUMNS,
     "measurements.csv": MEASUREMENT_COLUMNS,
+    "vehicles.csv": VEHICLE_COLUMNS,
+    "targets.csv": TARGET_COLUMNS,
 }
 
 
@@ -193,7 +209,7 @@ def cut_to_last_step(directory: Path, metric_columns: Sequence[str]) -> int:
     """
     columns = {**CSV_FILES, "metrics.csv": list(metric_columns)}
     last = -1
-    for name in ("metrics.csv", "trajectory.csv", "measurements.csv"):
+    for name in columns:  # metrics.csv first: it says which step is the last complete one
         path = Path(directory) / name
         header = (",".join(columns[name]) + "\n").encode()
         data = path.read_bytes() if path.is_file() else b""
@@ -305,6 +321,8 @@ class RunRecorder:
         self.metrics = _CsvStream(d / "metrics.csv", self.manifest["metric_columns"], append)
         self.trajectory = _CsvStream(d / "trajectory.csv", TRAJECTORY_COLUMNS, append)
         self.measurements = _CsvStream(d / "measurements.csv", MEASUREMENT_COLUMNS, append)
+        self.vehicles = _CsvStream(d / "vehicles.csv", VEHICLE_COLUMNS, append)
+        self.targets = _CsvStream(d / "targets.csv", TARGET_COLUMNS, append)
 
     def _write_manifest(self) -> None:
         tmp = self.directory / "manifest.json.partial"
@@ -327,6 +345,17 @@ class RunRecorder:
     def write_track(self, step: int, rows: Iterable[Sequence]) -> None:
         if step > self.replay_until:
             self._append("trajectory", self.trajectory, list(rows))
+
+    def write_vehicles(self, step: int, rows: list) -> None:
+        """Vehicle state rows (``VEHICLE_COLUMNS``) of a step: written before the step's metrics row,
+        so a complete step always has them."""
+        if step > self.replay_until and rows:
+            self._append("vehicles", self.vehicles, rows)
+
+    def write_targets(self, step: int, rows: list) -> None:
+        """One planner decision (``TARGET_COLUMNS``), labelled with the step of its first hop."""
+        if step > self.replay_until and rows:
+            self._append("targets", self.targets, rows)
 
     def _append(self, table: str, stream: _CsvStream, rows: list, columns: list | None = None) -> None:
         first = stream.rows_written
@@ -366,7 +395,7 @@ class RunRecorder:
             sink.appended("events", len(events) - 1, [[kind, vehicle, time_s, message, entry]])
 
     def finish(self, status: str, error: str | None = None, extra: dict | None = None) -> None:
-        for stream in (self.metrics, self.trajectory, self.measurements):
+        for stream in (self.metrics, self.trajectory, self.measurements, self.vehicles, self.targets):
             stream.close()
         self.manifest.update(status=status, ended_at=now_iso(), error=error, **(extra or {}))
         self._write_manifest()

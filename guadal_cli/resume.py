@@ -192,6 +192,13 @@ class ReplayFleet(Fleet):
     def pending_controls(self) -> list[dict]:
         return self.live.pending_controls() if self.is_live else []
 
+    def hold(self, vehicles: list[int] | None = None) -> None:
+        if self.is_live:  # replayed steps move nothing: there is nothing to stop yet
+            self.live.hold(vehicles)
+
+    def vehicle_status(self) -> dict[int, dict]:
+        return self.live.vehicle_status() if self.is_live else self.shadow.vehicle_status()
+
     def health(self) -> dict:
         return self.live.health()
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import yaml
 
 from ..errors import GuadalError
-from ..records import MEASUREMENT_COLUMNS, TRAJECTORY_COLUMNS, _CsvStream
+from ..records import MEASUREMENT_COLUMNS, TARGET_COLUMNS, TRAJECTORY_COLUMNS, VEHICLE_COLUMNS, _CsvStream
 from . import queries
 from .store import FIELD_KEYS, from_json_safe, parse_cell
 
@@ -24,7 +24,7 @@ def _value(v):
 
 
 def run_tables(engine, run: dict) -> dict[str, tuple[list[str], list[list]]]:
-    """The run's four files as (columns, rows), rows in file order."""
+    """The run's files as (columns, rows), rows in file order (vehicles and targets where it has them)."""
     run_id = run["id"]
     metric_columns = list(run.get("metric_columns") or [])
     steps = queries.steps(engine, run_id)
@@ -53,6 +53,12 @@ def run_tables(engine, run: dict) -> dict[str, tuple[list[str], list[list]]]:
             ],
         ),
     }
+    for name, columns, rows in (
+        ("vehicles", VEHICLE_COLUMNS, queries.vehicle_status(engine, run_id)),
+        ("targets", TARGET_COLUMNS, queries.targets(engine, run_id)),
+    ):
+        if rows:  # runs recorded before these files have none
+            tables[name] = (columns, [[r[c] for c in columns] for r in sorted(rows, key=_seq)])
     field_rows = queries.fields(engine, run_id)
     if field_rows:
         names = list(run.get("field_columns") or field_rows[0]["values"])

@@ -20,7 +20,13 @@ from .store import count_rows, parse_cell, save_rows, save_run
 
 SPOOL_NAME = "database.spool.jsonl"
 _BATCH = 2000
-_FILES = (("metrics", "metrics.csv"), ("trajectory", "trajectory.csv"), ("measurements", "measurements.csv"))
+_FILES = (
+    ("metrics", "metrics.csv"),
+    ("trajectory", "trajectory.csv"),
+    ("measurements", "measurements.csv"),
+    ("vehicles", "vehicles.csv"),  # runs from before these files have none: nothing to read
+    ("targets", "targets.csv"),
+)
 
 
 @dataclass

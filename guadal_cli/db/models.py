@@ -19,6 +19,7 @@ import datetime as _dt
 from sqlalchemy import (
     JSON,
     BigInteger,
+    Boolean,
     DateTime,
     Float,
     ForeignKey,
@@ -229,6 +230,48 @@ class FieldSnapshot(Base):
     values: Mapped[dict] = mapped_column(JSON)  # field name -> [value per node], 6 significant digits
 
 
+class VehicleStatus(Base):
+    """One row of vehicles.csv: a vehicle's state as its autopilot reported it, for operators.
+
+    Written at most once a second of mission time per vehicle, and at once when its mode,
+    arming or fault changes (``guadal_cli.fleet.status``).
+    """
+
+    __tablename__ = "vehicle_status"
+    __table_args__ = (UniqueConstraint("run_id", "seq"),)
+    id: Mapped[int] = mapped_column(RowId, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"))
+    seq: Mapped[int] = mapped_column(Integer)
+    step: Mapped[int] = mapped_column(Integer)
+    vehicle: Mapped[int] = mapped_column(Integer)
+    time_s: Mapped[float | None] = mapped_column(Float)
+    remaining: Mapped[float | None] = mapped_column(Float)  # metres of budget left
+    mode: Mapped[str | None] = mapped_column(String(40))
+    armed: Mapped[bool | None] = mapped_column(Boolean)
+    battery: Mapped[float | None] = mapped_column(Float)  # percent; NULL when not reported (sim)
+    link_age_s: Mapped[float | None] = mapped_column(Float)  # NULL without a link (sim)
+    fault: Mapped[str | None] = mapped_column(Text)
+
+
+class Target(Base):
+    """One row of targets.csv: the node a vehicle was sent to at a planner decision.
+
+    ``step`` is the step of the first hop towards it.
+    """
+
+    __tablename__ = "targets"
+    __table_args__ = (UniqueConstraint("run_id", "seq"),)
+    id: Mapped[int] = mapped_column(RowId, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"))
+    seq: Mapped[int] = mapped_column(Integer)
+    step: Mapped[int] = mapped_column(Integer)
+    vehicle: Mapped[int] = mapped_column(Integer)
+    node: Mapped[int] = mapped_column(Integer)
+    lat: Mapped[float | None] = mapped_column(Float)
+    lon: Mapped[float | None] = mapped_column(Float)
+    time_s: Mapped[float | None] = mapped_column(Float)
+
+
 #: the tables a run's rows go to, by the name the recorder uses for them
 ROW_TABLES = {
     "metrics": Step,
@@ -237,4 +280,6 @@ ROW_TABLES = {
     "events": Event,
     "fields": FieldValue,
     "field_snapshots": FieldSnapshot,
+    "vehicles": VehicleStatus,
+    "targets": Target,
 }

@@ -16,7 +16,18 @@ from sqlalchemy import and_, func, or_, select
 
 from ..errors import GuadalError
 from .engine import current_revision, make_engine, redact
-from .models import Event, FieldValue, Map, Measurement, Run, Step, TrajectoryPoint, Vehicle
+from .models import (
+    Event,
+    FieldValue,
+    Map,
+    Measurement,
+    Run,
+    Step,
+    Target,
+    TrajectoryPoint,
+    Vehicle,
+    VehicleStatus,
+)
 
 #: filters ``list_runs`` accepts (``guadal db runs`` options, ``guadal report --where KEY=VALUE``)
 RUN_FILTERS = ("map", "algorithm", "environment", "level", "status", "name", "since", "until")
@@ -194,6 +205,16 @@ def events(engine, run_id: int, after_id: int = 0, limit: int | None = None) -> 
     return _since(engine, Event, run_id, after_id, limit, Event.id)
 
 
+def vehicle_status(engine, run_id: int, after_id: int = 0, limit: int | None = None) -> list[dict]:
+    """Each vehicle's reported state: remaining budget, mode, armed, battery, link age, fault."""
+    return _since(engine, VehicleStatus, run_id, after_id, limit, VehicleStatus.id)
+
+
+def targets(engine, run_id: int, after_id: int = 0, limit: int | None = None) -> list[dict]:
+    """The node each vehicle was sent to at each planner decision (step of its first hop)."""
+    return _since(engine, Target, run_id, after_id, limit, Target.id)
+
+
 def fields(engine, run_id: int) -> list[dict]:
     """The final per-node maps (written when the run ends): node, row, col, lat, lon, values."""
     return _since(engine, FieldValue, run_id, 0, None, FieldValue.node)
@@ -209,6 +230,8 @@ def latest_ids(engine, run_id: int | None = None) -> dict[str, int]:
             ("measurements", Measurement),
             ("trajectory", TrajectoryPoint),
             ("events", Event),
+            ("vehicles", VehicleStatus),
+            ("targets", Target),
         ):
             stmt = select(func.max(model.id))
             if run_id is not None:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from sqlalchemy import func, select, text, update
 
-from ..records import MEASUREMENT_COLUMNS, TRAJECTORY_COLUMNS
+from ..records import MEASUREMENT_COLUMNS, TARGET_COLUMNS, TRAJECTORY_COLUMNS, VEHICLE_COLUMNS
 from .models import ROW_TABLES, Map, Run, Vehicle
 
 FIELD_KEYS = ["node", "row", "col", "lat", "lon"]
@@ -360,6 +360,21 @@ def _trajectory(run, first, rows, columns):
     return [dict(zip(TRAJECTORY_COLUMNS, row), run_id=run.id, seq=seq) for seq, row in enumerate(rows, first)]
 
 
+def _vehicles(run, first, rows, columns):
+    out = []
+    for seq, row in enumerate(rows, first):
+        d = dict(zip(VEHICLE_COLUMNS, row), run_id=run.id, seq=seq)
+        d["armed"] = None if d["armed"] is None else bool(d["armed"])
+        for key in ("time_s", "remaining", "battery", "link_age_s"):
+            d[key] = _finite(d[key])
+        out.append(d)
+    return out
+
+
+def _targets(run, first, rows, columns):
+    return [dict(zip(TARGET_COLUMNS, row), run_id=run.id, seq=seq) for seq, row in enumerate(rows, first)]
+
+
 def _events(run, first, rows, columns):
     return [dict(zip(EVENT_COLUMNS, row), run_id=run.id, seq=seq) for seq, row in enumerate(rows, first)]
 
@@ -393,4 +408,6 @@ _CONVERT = {
     "events": _events,
     "fields": _fields,
     "field_snapshots": _field_snapshots,
+    "vehicles": _vehicles,
+    "targets": _targets,
 }

@@ -110,6 +110,17 @@ class Fleet(ABC):
         """Stop vehicles (default: all) where they are until their next hop: an operator's pause,
         hold or abort. In simulation vehicles only move when told to, so there is nothing to do."""
 
+    def vehicle_status(self) -> dict[int, dict]:
+        """Each vehicle's state as its autopilot reports it, for operators: ``mode``, ``armed``,
+        ``battery`` (percent, or None when not reported), ``link_age_s`` (seconds since the vehicle
+        was last heard, None without a link) and ``fault`` (the last one, or '').
+
+        Simulated vehicles follow each target at once, as an armed autopilot in GUIDED mode
+        would; they have no battery and no link to age, and no battery figure is made up."""
+        lost = self.lost
+        simulated = {"mode": "GUIDED", "armed": True, "battery": None, "link_age_s": None}
+        return {v: {**simulated, "fault": lost.get(v, "")} for v in range(self.n_vehicles)}
+
     def health(self) -> dict:
         """Faults met on the way (messages dropped, vehicles lost), for the run manifest."""
         return {}

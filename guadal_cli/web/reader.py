@@ -34,6 +34,8 @@ class Cursor:
     measurements: int = 0
     events: int = 0
     fields: int = 0  # the newest field snapshot sent
+    vehicles: int = 0
+    targets: int = 0
     run: str = ""  # the run's last update time: its status, step count or fields changed
 
     def text(self) -> str:
@@ -46,7 +48,7 @@ class Cursor:
             ids = [int(part) for part in (text or "").split(".")]
         except ValueError:
             return cls()
-        return cls(*ids) if len(ids) == 5 and min(ids) >= 0 else cls()
+        return cls(*ids) if len(ids) == 7 and min(ids) >= 0 else cls()
 
 
 def _finite(value):
@@ -167,7 +169,14 @@ class ConsoleReader:
             ).scalar()
         stamp = str(ids["runs_updated_at"])
         new = Cursor(
-            ids["steps"], ids["trajectory"], ids["measurements"], ids["events"], snapshot or 0, stamp
+            ids["steps"],
+            ids["trajectory"],
+            ids["measurements"],
+            ids["events"],
+            snapshot or 0,
+            ids["vehicles"],
+            ids["targets"],
+            stamp,
         )
         if new == cursor:
             return {}, cursor
@@ -206,6 +215,21 @@ class ConsoleReader:
                 }
                 for r in queries.measurements(self.engine, run_id, cursor.measurements)
                 if r["id"] <= new.measurements
+            ]
+        if new.vehicles > cursor.vehicles:
+            out["vehicles"] = [
+                {
+                    **{k: r[k] for k in ("step", "vehicle", "mode", "armed", "fault")},
+                    **{k: _finite(r[k]) for k in ("time_s", "remaining", "battery", "link_age_s")},
+                }
+                for r in queries.vehicle_status(self.engine, run_id, cursor.vehicles)
+                if r["id"] <= new.vehicles
+            ]
+        if new.targets > cursor.targets:
+            out["targets"] = [
+                {k: r[k] for k in ("step", "vehicle", "node", "lat", "lon", "time_s")}
+                for r in queries.targets(self.engine, run_id, cursor.targets)
+                if r["id"] <= new.targets
             ]
         if new.events > cursor.events:
             out["events"] = [

@@ -16,7 +16,18 @@ from guadal_cli.db.engine import (
 )
 from guadal_cli.db.models import Base
 
-TABLES = {"maps", "runs", "run_vehicles", "steps", "measurements", "trajectory", "events", "fields"}
+TABLES = {
+    "maps",
+    "runs",
+    "run_vehicles",
+    "steps",
+    "measurements",
+    "trajectory",
+    "events",
+    "fields",
+    "vehicle_status",
+    "targets",
+}
 
 
 def test_migrations_build_the_schema_from_empty_and_match_the_models(db_url):

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 PG_ADMIN = os.environ.get("GUADAL_TEST_PG", "postgresql://postgres@127.0.0.1:5432/test")
-RUN_FILES = ("metrics.csv", "trajectory.csv", "measurements.csv", "fields.csv")
+RUN_FILES = ("metrics.csv", "trajectory.csv", "measurements.csv", "vehicles.csv", "targets.csv", "fields.csv")
 
 
 def _admin():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import io
 import json
 import urllib.request
@@ -34,17 +35,31 @@ def test_a_finished_run_is_listed_streamed_and_downloadable(db_url, tmp_path, wr
                 lines.append(stream.readline().decode().rstrip("\n"))
         event = dict(line.split(": ", 1) for line in lines if ": " in line)
         data = json.loads(event["data"])
-        assert event["event"] == "update" and event["id"].count(".") == 4
+        assert event["event"] == "update" and event["id"].count(".") == 6
         assert [s["step"] for s in data["steps"]] == list(range(manifest["steps"] + 1))
         assert len(data["measurements"]) == manifest["final_metrics"]["samples"]
         assert set(data["fields"][-1]["values"]) >= {"mean", "std"}
+        # each boat's state and each decision's targets, as the run directory has them
+        with open(tmp_path / "run" / "targets.csv", newline="") as fh:
+            targets = [(int(r["step"]), int(r["vehicle"]), int(r["node"])) for r in csv.DictReader(fh)]
+        assert [(t["step"], t["vehicle"], t["node"]) for t in data["targets"]] == targets
+        assert {t["vehicle"] for t in data["targets"]} == {0, 1, 2}
+        with open(tmp_path / "run" / "vehicles.csv", newline="") as fh:
+            assert len(data["vehicles"]) == sum(1 for _ in csv.DictReader(fh))
+        last = {v["vehicle"]: v for v in data["vehicles"]}
+        assert sorted(last) == [0, 1, 2]
+        for v, row in last.items():  # simulated boats: GUIDED and armed; no battery, no link to age
+            reported = (row["mode"], row["armed"], row["battery"], row["link_age_s"])
+            assert reported == ("GUIDED", True, None, None)
+            assert abs(row["remaining"] - (120.0 - manifest["final_metrics"][f"distance_v{v}"])) < 1e-6
 
         status, raw = console.call(f"/api/runs/{run_id}/download/csv")
         names = zipfile.ZipFile(io.BytesIO(raw)).namelist()
         assert status == 200 and {n.split("/")[-1] for n in names} >= {"metrics.csv", "trajectory.csv"}
-        metrics = [n for n in names if n.endswith("metrics.csv")][0]
-        exported = zipfile.ZipFile(io.BytesIO(raw)).read(metrics)
-        assert exported == (tmp_path / "run" / "metrics.csv").read_bytes()
+        for name in ("metrics.csv", "vehicles.csv", "targets.csv"):
+            inside = [n for n in names if n.endswith(name)][0]
+            exported = zipfile.ZipFile(io.BytesIO(raw)).read(inside)
+            assert exported == (tmp_path / "run" / name).read_bytes()
         status, raw = console.call(f"/api/runs/{run_id}/download/geojson")
         assert status == 200 and json.loads(raw)["type"] == "FeatureCollection"
         status, raw = console.call(f"/api/runs/{run_id}/download/plan")

@@ -57,6 +57,31 @@ def _visible(driver, element_id: str) -> bool:
         return False
 
 
+def _boat_cells(driver, vehicle: int) -> dict[str, str] | None:
+    """The boats panel's cells for one boat (mode, armed, battery, link, ...); None while redrawn."""
+    from selenium.common.exceptions import StaleElementReferenceException
+
+    try:
+        row = driver.find_elements(By.CSS_SELECTOR, f'#boats tr[data-vehicle="{vehicle}"] td[data-field]')
+        return {td.get_attribute("data-field"): td.text for td in row} or None
+    except StaleElementReferenceException:
+        return None
+
+
+def _target_nodes(driver) -> dict[str, int] | None:
+    """Each drawn target marker's node, by boat; None while the page is redrawing one."""
+    from selenium.common.exceptions import StaleElementReferenceException
+
+    out = {}
+    try:
+        for marker in driver.find_elements(By.CSS_SELECTOR, ".leaflet-marker-icon.target"):
+            name = next(c for c in marker.get_attribute("class").split() if c.startswith("target-"))
+            out[name] = int(marker.get_attribute("data-node"))
+    except (StaleElementReferenceException, TypeError):
+        return None
+    return out
+
+
 def _markers(driver) -> dict[str, tuple] | None:
     """Each boat marker's place on the screen; None while the page is redrawing one."""
     from selenium.common.exceptions import StaleElementReferenceException
@@ -114,6 +139,19 @@ def test_a_running_mission_shows_live_and_obeys_pause_resume_hold_and_abort(
         # the boats' markers move on the map
         before = wait_for(lambda: _markers(driver), what="the boat markers")
         wait_for(lambda: _markers(driver) not in (None, before), what="a boat marker to move")
+
+        # each boat's state as recorded (simulated boats: GUIDED, armed, no battery, no link),
+        # and a marker on the target the planner last gave it, one of those in targets.csv
+        cells = wait_for(lambda: _boat_cells(driver, 1), what="boat 1's row")
+        assert (cells["mode"], cells["armed"], cells["battery"], cells["link"]) == ("GUIDED", "yes", "—", "—")
+        assert float(cells["remaining"]) <= 2000.0
+        drawn = wait_for(
+            lambda: len(_target_nodes(driver) or {}) == 3 and _target_nodes(driver), what="targets"
+        )
+        sent = {f"target-{r['vehicle']}": set() for r in _rows(run_dir / "targets.csv")}
+        for r in _rows(run_dir / "targets.csv"):
+            sent[f"target-{r['vehicle']}"].add(int(r["node"]))
+        assert all(node in sent[name] for name, node in drawn.items())
 
         # the model's std arrives while the mission runs, and is redrawn as it learns
         _click(driver, '#field option[value="std"]')
@@ -183,6 +221,21 @@ def test_a_running_mission_shows_live_and_obeys_pause_resume_hold_and_abort(
         wait_for(
             lambda: driver.find_element(By.ID, "status").text == "interrupted", what="the page to say so"
         )
+        # replayed at an earlier step: the targets drawn are those of the decision then in force,
+        # and the held boat's row says it was held then
+        targets = _rows(run_dir / "targets.csv")
+        back = held_from + 2  # after the hold was applied, before the release (3 steps later at least)
+        driver.execute_script(
+            "const s = document.getElementById('slider'); s.value = arguments[0];"
+            "s.dispatchEvent(new Event('input'));",
+            back,
+        )
+        expected = {f"target-{r['vehicle']}": int(r["node"]) for r in targets if int(r["step"]) <= back}
+        wait_for(lambda: _target_nodes(driver) == expected, what=f"the targets of step {back}")
+        wait_for(
+            lambda: (_boat_cells(driver, 1) or {}).get("mode") == "GUIDED · held", what="boat 1 held then"
+        )
+        driver.save_screenshot(str(ARTIFACTS / "console-replay.png"))
         db_events = [e for e in queries.events(engine, run_id) if e["kind"] == "control"]
         assert [e["detail"]["action"] for e in db_events] == ["pause", "resume", "hold", "release", "abort"]
         assert all(e["detail"]["who"] == "operator" for e in db_events)

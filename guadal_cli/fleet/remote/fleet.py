@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Callable, Mapping, Sequence
 
 from ...errors import GuadalError
@@ -336,6 +337,22 @@ class RemoteFleet(Fleet):
     def lost(self) -> dict[int, str]:
         """Vehicles out of the mission (offline, failsafe, refused), with the reason."""
         return {v.id: v.problem for v in self.vehicles if v.problem is not None}
+
+    def vehicle_status(self) -> dict[int, dict]:
+        """What each bridge last reported of its autopilot, how long ago it was heard, and its fault:
+        why it is out of the mission, or its bridge's state when that is not a normal one."""
+        now = time.monotonic()
+        with self._owner.cond:
+            return {
+                v.id: {
+                    "mode": v.mode,
+                    "armed": v.armed,
+                    "battery": v.battery,
+                    "link_age_s": None if v.heard_at is None else round(now - v.heard_at, 2),
+                    "fault": v.problem or (f"bridge {v.state}" if v.state in ("failsafe", "offline") else ""),
+                }
+                for v in self.vehicles
+            }
 
     def health(self) -> dict:
         with self._owner.cond:

@@ -264,6 +264,7 @@ class FleetOwner:
         if channel == "command":
             return self._drop("topic", f"vehicle {vid}: the planner does not take commands.")
         v = self.vehicles[vid]
+        v.heard_at = time.monotonic()  # signed and checked by the channel: the link is alive
         if channel in ("ack", "measurement") and data["session"] != self.session:
             return self._drop(
                 "foreign_session",
@@ -402,15 +403,32 @@ class FleetOwner:
             )
         v.fix_t, v.fix = t, (lat, lon)
         self._clock(v, data)
+        self._autopilot_state(v, data)
         if v.goto is not None and v.goto.open and v.goto.claimed is not None:
             self._confirm(v, v.goto)
         # the track keeps one fix per 1/track_rate seconds of the vehicle's clock, whatever the speed-up
         if v.t0 is not None and v.track_sampler.take(t):
             v.track.append({"vehicle": v.id, "lat": lat, "lon": lon, "time_s": t - v.t0})
 
+    @staticmethod
+    def _autopilot_state(v: RemoteVehicle, data: dict) -> None:
+        """Mode, arming and battery where a telemetry or status message reports them (optional fields)."""
+        mode, armed, battery = data.get("mode"), data.get("armed"), data.get("battery")
+        if isinstance(mode, str) and mode:
+            v.mode = mode[:40]
+        if isinstance(armed, bool):
+            v.armed = armed
+        if "battery" in data:
+            ok = (
+                isinstance(battery, (int, float)) and not isinstance(battery, bool) and math.isfinite(battery)
+            )
+            v.battery = float(battery) if ok else None
+
     def _on_status(self, v: RemoteVehicle, data: dict) -> None:
         state, before = data["state"], v.state
         v.state = state
+        if state != "offline":
+            self._autopilot_state(v, data)
         if isinstance(data.get("counters"), dict):
             v.bridge_counters = {k: n for k, n in data["counters"].items() if isinstance(n, int) and n > 0}
         if state == "offline":

@@ -53,6 +53,10 @@ class RemoteVehicle:
     track: list[dict] = field(default_factory=list)
     track_sampler: TrackSampler = field(default_factory=TrackSampler)  # keeps fixes at the track rate
     bridge_counters: dict = field(default_factory=dict)  # the bridge's own fault counters (its status)
+    heard_at: float | None = None  # monotonic time of its latest message (any kind)
+    mode: str | None = None  # the autopilot's mode, arming and battery, as its telemetry reports them
+    armed: bool | None = None
+    battery: float | None = None
 
     def next_seq(self) -> int:
         self.seq += 1

@@ -9,10 +9,11 @@ const $ = (id) => document.getElementById(id);
 
 const state = {
   info: null, steps: [], track: [], samples: [], events: [], fields: [], vehicles: {},
+  status: [], targets: [], // vehicles.csv and targets.csv rows, in the order they were recorded
   maxStep: 0, view: 0,
 };
 let map, cells, chart, dirty = false;
-const layers = { tracks: {}, plans: {}, boats: {}, targets: {}, nodes: null };
+const layers = { tracks: {}, plans: {}, boats: {}, targets: {}, targetMarks: {}, nodes: null };
 
 function colourOf(v) { return PALETTE[v % PALETTE.length]; }
 
@@ -84,6 +85,19 @@ function boatIcon(v, heading) {
   return L.divIcon({ html: svg, className: `boat boat-${v}`, iconSize: [18, 18], iconAnchor: [9, 9] });
 }
 
+function targetIcon(v) {
+  const svg = `<svg viewBox="-8 -8 16 16" width="16" height="16"><circle r="6" fill="none" stroke="${colourOf(v)}" stroke-width="2"/>
+    <path d="M-3,-3L3,3M-3,3L3,-3" stroke="${colourOf(v)}" stroke-width="1.5"/></svg>`;
+  return L.divIcon({ html: svg, className: `target target-${v}`, iconSize: [16, 16], iconAnchor: [8, 8] });
+}
+
+// The latest row per vehicle recorded at or before step `upTo` (the live end, or the slider's step).
+function latestUpTo(rows, upTo) {
+  const out = {};
+  for (const r of rows) if (r.step <= upTo) out[r.vehicle] = r;
+  return out;
+}
+
 function bearing(a, b) {
   const toRad = Math.PI / 180, dLon = (b[1] - a[1]) * toRad;
   const y = Math.sin(dLon) * Math.cos(b[0] * toRad);
@@ -99,6 +113,7 @@ function drawMap() {
     ((bySource[r.source] ||= {})[r.vehicle] ||= []).push([r.lat, r.lon]);
   }
   const vehicles = new Set([...Object.keys(bySource.plan), ...Object.keys(bySource.gps)].map(Number));
+  const targets = latestUpTo(state.targets, upTo);
   for (const v of vehicles) {
     const plan = bySource.plan[v] || [], gps = bySource.gps[v] || [];
     const colour = colourOf(v);
@@ -117,13 +132,18 @@ function drawMap() {
     } else {
       layers.boats[v].setLatLng(here).setIcon(boatIcon(v, heading));
     }
-    const target = state.vehicles[v] && state.vehicles[v].target;
-    const live = state.view >= state.maxStep;
-    if (live && target !== null && target !== undefined && state.info.grid.nodes[target]) {
-      const t = state.info.grid.nodes[target];
+    const target = targets[v];
+    if (target) {
+      const t = [target.lat, target.lon];
       (layers.targets[v] ||= L.polyline([], { color: colour, weight: 1.5, dashArray: "6 4" }).addTo(map)).setLatLngs([here, t]);
-    } else if (layers.targets[v]) {
-      layers.targets[v].setLatLngs([]);
+      if (!layers.targetMarks[v]) {
+        layers.targetMarks[v] = L.marker(t, { icon: targetIcon(v), zIndexOffset: 500 }).addTo(map);
+        layers.targetMarks[v].bindTooltip(`boat ${v}'s target`);
+      }
+      layers.targetMarks[v].setLatLng(t).getElement()?.setAttribute("data-node", target.node);
+    } else {
+      if (layers.targets[v]) layers.targets[v].setLatLngs([]);
+      if (layers.targetMarks[v]) { layers.targetMarks[v].remove(); delete layers.targetMarks[v]; }
     }
   }
   // planned nodes: every node a plan row visited, as small dots
@@ -147,11 +167,12 @@ function drawBoats() {
   $("boats").querySelector("tbody").innerHTML = rows.map((b) => `
     <tr data-vehicle="${b.vehicle}">
       <td><span style="color:${colourOf(b.vehicle)}">&#9650;</span> ${b.vehicle}</td>
-      <td class="num">${guadal.num(b.remaining, 4)}</td><td>${guadal.esc(b.mode ?? "–")}</td>
-      <td>${b.armed === null || b.armed === undefined ? "–" : b.armed ? "yes" : "no"}</td>
-      <td class="num">${b.battery === null || b.battery === undefined ? "–" : guadal.num(b.battery) + " %"}</td>
-      <td class="num">${b.link_age_s === null || b.link_age_s === undefined ? "–" : guadal.num(b.link_age_s, 2) + " s"}</td>
-      <td>${guadal.esc(b.last_fault ?? "")}</td>
+      <td class="num" data-field="remaining">${guadal.num(b.remaining, 4)}</td>
+      <td data-field="mode">${guadal.esc(b.mode ?? "—")}</td>
+      <td data-field="armed">${b.armed === null ? "—" : b.armed ? "yes" : "no"}</td>
+      <td class="num" data-field="battery">${b.battery === null ? "—" : guadal.num(b.battery) + " %"}</td>
+      <td class="num" data-field="link">${b.link_age_s === null ? "—" : guadal.num(b.link_age_s, 2) + " s"}</td>
+      <td data-field="fault">${guadal.esc(b.last_fault ?? "")}</td>
       <td>${controls ? `<button data-action="${b.held ? "release" : "hold"}" data-vehicle="${b.vehicle}">${b.held ? "release" : "hold"}</button>` : ""}</td>
     </tr>`).join("");
 }
@@ -207,6 +228,7 @@ function drawHeader() {
 function render() {
   dirty = false;
   drawHeader();
+  updateBoats();
   drawMap();
   drawBoats();
   drawSamples();
@@ -225,9 +247,10 @@ function apply(update) {
   state.track.push(...(update.track || []));
   state.samples.push(...(update.measurements || []));
   state.events.push(...(update.events || []));
+  state.status.push(...(update.vehicles || []));
+  state.targets.push(...(update.targets || []));
   state.fields.push(...(update.fields || []));
   if (state.fields.length > 600) state.fields.splice(0, state.fields.length - 600); // a long mission's live maps
-  updateBoats();
   for (const s of update.fields || []) {
     for (const name of Object.keys(s.values)) {
       if (![...$("field").options].some((o) => o.value === name)) $("field").add(new Option(name, name));
@@ -246,13 +269,19 @@ function apply(update) {
   schedule();
 }
 
-// Per boat: budget left from the latest metrics row; held/paused and last fault from the events.
+// Per boat, at the step shown: what it last reported (vehicles.csv: budget left, mode, armed,
+// battery, link age, fault); held/paused from the operators' events; no row yet: the budget
+// from the latest metrics row.
 function updateBoats() {
   const n = state.info.run.vehicles || 0;
   const last = state.steps.length ? state.steps[state.steps.length - 1].metrics : {};
+  const reported = latestUpTo(state.status, state.view);
+  const shown = state.steps.find((r) => r.step === state.view);
+  const until = state.view >= state.maxStep || !shown ? Infinity : shown.time_s; // replay: events until then
   let paused = false;
   const held = {}, fault = {};
   for (const e of state.events) {
+    if (e.time_s !== null && e.time_s !== undefined && e.time_s > until) continue;
     if (e.kind === "control") {
       const action = e.action;
       if (action === "pause") paused = true;
@@ -263,18 +292,20 @@ function updateBoats() {
       fault[e.vehicle] = `${e.kind}: ${e.detail || ""}`;
     }
   }
-  const running = state.info.run.status === "running";
   for (let v = 0; v < n; v++) {
     const used = last[`distance_v${v}`];
     const budget = state.info.max_distance;
-    const telemetry = state.vehicles[v] || {};
+    const r = reported[v] || {};
+    const operator = held[v] ? " · held" : paused ? " · paused" : "";
     state.vehicles[v] = {
-      ...telemetry,
       vehicle: v,
-      remaining: budget === null || budget === undefined || used === undefined ? null : Math.max(0, budget - used),
-      mode: !running ? "done" : held[v] ? "HOLD (operator)" : paused ? "paused" : telemetry.mode || "planning",
+      remaining: r.remaining ?? (budget === null || budget === undefined || used === undefined ? null : Math.max(0, budget - used)),
+      mode: r.mode ? r.mode + operator : null,
+      armed: r.armed ?? null,
+      battery: r.battery ?? null,
+      link_age_s: r.link_age_s ?? null,
       held: !!held[v],
-      last_fault: fault[v] || telemetry.last_fault || "",
+      last_fault: r.fault || fault[v] || "",
     };
   }
   state.paused = paused;
