@@ -23,6 +23,7 @@ from .controls import FleetInbox, MissionAborted, OperatorControls
 from .envs.base import Observation
 from .errors import GuadalError
 from .fleet.base import Fleet, Measurement
+from .fleet.status import StatusSampler
 from .mission import Prepared
 from .planners.base import SEQUENTIAL
 from .records import RunRecorder, file_sha256
@@ -120,6 +121,7 @@ class MissionRunner:
         self.step = 0
         self.stop_reason = ""
         self._share_fields_at = 0.0
+        self.status = StatusSampler()
 
     # --- bookkeeping -----------------------------------------------------------------------
     def _manifest(self) -> dict:
@@ -179,6 +181,7 @@ class MissionRunner:
             for v, node in sorted(fleet.positions.items())
         ]
         meas = [(self.step, m.vehicle, m.node, m.lat, m.lon, m.value, m.time_s) for m in measurements]
+        self.recorder.write_vehicles(self.step, self.status.rows(self.step, fleet))
         self.recorder.write_step(self.step, row, traj, meas)
         track = fleet.track_rows()
         if track:
@@ -194,6 +197,12 @@ class MissionRunner:
             self._share_fields_at = time.monotonic() + _SHARE_FIELDS_EVERY_S
             self.recorder.share_fields(self.step, self.environment.observation_fields())
         self.on_step(self.step, fleet)
+
+    def _record_targets(self, targets: dict[int, int], fleet: Fleet) -> None:
+        """One decision: where each vehicle is sent, labelled with the step of its first hop."""
+        g, step = self.graph, self.step + 1
+        rows = [(step, v, t, g.lat[t], g.lon[t], fleet.mission_time) for v, t in sorted(targets.items())]
+        self.recorder.write_targets(step, rows)
 
     def _observation(self, fleet: Fleet, done: dict[int, bool]) -> Observation:
         return Observation(
@@ -388,6 +397,7 @@ class MissionRunner:
             if not targets:
                 self.stop_reason = "the algorithm sent no more targets"
                 return
+            self._record_targets(targets, fleet)
             step_before = self.step
             paths = {v: self.graph.shortest_path(positions[v], t)[1:] for v, t in targets.items()}
             pending: list[Measurement] = []

@@ -26,7 +26,7 @@ from guadal_cli.mission import prepare
 from guadal_cli.resume import prepare_resume
 from guadal_cli.runner import MissionRunner
 
-CSVS = ("metrics.csv", "trajectory.csv", "measurements.csv", "fields.csv")
+CSVS = ("metrics.csv", "trajectory.csv", "measurements.csv", "vehicles.csv", "targets.csv", "fields.csv")
 
 PLANNERS = {
     "greedy": {"type": "greedy"},
@@ -51,9 +51,11 @@ def killed_copy(full, out, step: int, torn: bytes = b"") -> None:
     manifest = json.loads((full / "manifest.json").read_text())
     manifest.update(status="running", ended_at=None, steps=0, final_metrics=None, stop_reason="")
     (out / "manifest.json").write_text(json.dumps(manifest))
-    for name in CSVS[:3]:
+    for name in CSVS[:-1]:
         lines = (full / name).read_bytes().splitlines(keepends=True)
-        kept = [lines[0]] + [line for line in lines[1:] if int(line.split(b",")[0]) <= step]
+        # the decision after step k (labelled k+1, its first hop) may be on disk already
+        last = step + 1 if name == "targets.csv" else step
+        kept = [lines[0]] + [line for line in lines[1:] if int(line.split(b",")[0]) <= last]
         (out / name).write_bytes(b"".join(kept) + (torn if name == "trajectory.csv" else b""))
 
 
