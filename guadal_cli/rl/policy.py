@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import GuadalError
+from ..maps.format import checked_path
 
 #: the metadata key an exported policy's training settings are stored under
 METADATA_KEY = "guadal"
@@ -50,10 +52,11 @@ def resolve_source(spec: str, base_dir: Path | None) -> str:
     """An ONNX path made absolute against the mission's folder; a callable name unchanged."""
     if is_callable_name(spec):
         return spec
-    path = Path(spec).expanduser()
+    checked_path(spec, "the policy file")
+    path = Path(spec)
     if not path.is_absolute() and base_dir is not None:
         path = Path(base_dir) / path
-    return str(path.resolve())
+    return os.path.abspath(path)
 
 
 def load_policy(source: str, layout: str = "image") -> Policy:
@@ -88,7 +91,11 @@ def _load_onnx(path: Path) -> Policy:
         raise GuadalError(
             f"'{path.name}' is neither an .onnx file nor a 'module:function' name; give one of the two."
         )
-    if not path.is_file():
+    try:
+        exists = path.is_file()
+    except OSError as exc:
+        raise GuadalError(f"cannot read the policy file '{path}' ({exc.strerror or exc}).") from exc
+    if not exists:
         raise GuadalError(f"the policy file '{path}' does not exist.")
     try:
         import onnxruntime as ort
