@@ -187,6 +187,13 @@ def read_manifest(directory: Path) -> dict:
     return manifest
 
 
+def write_manifest(directory: Path, manifest: dict) -> None:
+    """Replace a run's manifest atomically: a reader (or a crash) sees the old one or the new one."""
+    tmp = Path(directory) / "manifest.json.partial"
+    tmp.write_text(json.dumps(manifest, indent=2) + "\n")
+    tmp.replace(Path(directory) / "manifest.json")
+
+
 def _step_of(line: bytes, n_columns: int) -> int | None:
     """The step of one complete CSV row, or None for a torn or foreign line."""
     if not line.endswith(b"\n"):
@@ -325,9 +332,7 @@ class RunRecorder:
         self.targets = _CsvStream(d / "targets.csv", TARGET_COLUMNS, append)
 
     def _write_manifest(self) -> None:
-        tmp = self.directory / "manifest.json.partial"
-        tmp.write_text(json.dumps(self.manifest, indent=2) + "\n")
-        tmp.replace(self.directory / "manifest.json")
+        write_manifest(self.directory, self.manifest)
 
     def write_step(self, step: int, metrics: dict, trajectory_rows: list, measurement_rows: list) -> None:
         self.manifest["steps"] = step

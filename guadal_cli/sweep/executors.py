@@ -17,7 +17,7 @@ from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
 
 from ..errors import GuadalError
-from .worker import run_combination
+from .worker import run_combination, stop_on_terminate
 
 #: environment of local workers: one BLAS/OpenMP thread each, set before numpy is imported
 _ONE_THREAD = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
@@ -27,6 +27,7 @@ def _init_local_worker(sweep_pid: int) -> None:
     # Ctrl-C reaches the whole process group; only the sweep decides how its workers stop
     # (with SIGTERM, which a running mission turns into an 'interrupted' run directory).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    stop_on_terminate()
     os.environ.update(_ONE_THREAD)
     # the sweep's pid, passed in: read here, it may already be init's when the sweep died during start-up
     threading.Thread(target=_stop_when_orphaned, args=(sweep_pid,), daemon=True).start()
@@ -90,15 +91,16 @@ class LocalExecutor:
     def stop(self, handles: list) -> None:
         # SIGTERM: a running mission writes its run directory as 'interrupted' and the worker ends.
         # Bounded waits: a worker stopped mid-read of the task queue must not hold the sweep up.
+        # Closing the pool right away lets each worker exit as soon as its mission has returned.
         processes = list(getattr(self._pool, "_processes", {}).values())
         for process in processes:
             if process.is_alive():
                 process.terminate()
+        self._pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:
             process.join(timeout=30)
             if process.is_alive():
                 process.kill()
-        self._pool.shutdown(wait=False, cancel_futures=True)
         self._stopped = True
 
     def close(self) -> None:

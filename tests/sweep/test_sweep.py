@@ -298,6 +298,9 @@ def test_ctrl_c_stops_cleanly_and_the_same_command_continues(tmp_path):
         run = tmp_path / "out" / entry["run_dir"] / "manifest.json"
         if entry["status"] == "interrupted" and run.is_file():
             assert json.loads(run.read_text())["status"] == "interrupted"
+    # however early in its mission the stop reached a worker, no run directory is left 'running'
+    for run in (tmp_path / "out" / "runs").glob("*/manifest.json"):
+        assert json.loads(run.read_text())["status"] in ("complete", "interrupted"), run.parent.name
     again = run_cli("sweep", path, "--workers", "2", "--quiet")
     assert again.returncode == 0, again.stderr
     assert all(e["status"] == "complete" for e in manifest(tmp_path / "out")["combinations"])
