@@ -178,6 +178,9 @@ class Prepared:
     environment: object  # built and reset: its nested plugins and files are checked too
     environment_seed: int
     planner_seed: int
+    #: a resumed run: where its record last saw each vehicle (a launched sitl stack puts its boats
+    #: there, as boats that waited where they were would be); None for a new run
+    resume_nodes: list[int] | None = None
 
     def resolved_dict(self) -> dict:
         """The mission as run: defaults filled in, plugin params as validated."""

@@ -137,8 +137,6 @@ class ReplayFleet(Fleet):
         self._agree()
 
     def move(self, targets: Mapping[int, int]) -> tuple[dict[int, bool], dict[int, bool]]:
-        if not self.is_live and self.step + 1 >= len(self.record):
-            self._go_live()
         if self.is_live:
             return self.live.move(targets)
         self.shadow.move(targets)
@@ -175,10 +173,13 @@ class ReplayFleet(Fleet):
                     time_s=float(row["time_s"]) if time_s is None else time_s,
                 )
             )
+        if self.step + 1 >= len(self.record):
+            self._go_live()  # before the next decision: it is made on where the boats really are
         return out
 
     def _go_live(self) -> None:
-        """The record is spent: the real fleet continues from where it left the vehicles."""
+        """The record is spent: the real fleet takes over (at remote levels, each boat from where
+        its GPS puts it, and without the boats that do not answer)."""
         self.live.restore(self.shadow.positions, self.shadow.distances, self.shadow.mission_time)
         self.is_live = True
 
@@ -217,4 +218,27 @@ def prepare_resume(directory: Path) -> Prepared:
         raise GuadalError(f"run '{directory}' is complete; there is nothing to resume.")
     resolved = directory / "mission.resolved.yaml"
     mission_dir = manifest.get("mission_dir") or str(Path(str(manifest.get("mission_file", ""))).parent)
-    return prepare_dict(read_mission_file(resolved), Path(mission_dir), resolved, check_output=False)
+    prep = prepare_dict(read_mission_file(resolved), Path(mission_dir), resolved, check_output=False)
+    prep.resume_nodes = last_positions(directory, prep.mission.fleet.vehicles)
+    return prep
+
+
+def last_positions(directory: Path, vehicles: int) -> list[int] | None:
+    """Each vehicle's node at the run's last complete step (its last metrics row), or None if
+    the run recorded no complete step. Read only: ``resume`` cuts the files itself."""
+    try:
+        data = (Path(directory) / "metrics.csv").read_bytes()
+    except OSError:
+        return None
+    lines = data[: data.rfind(b"\n") + 1].splitlines()[1:]
+    try:
+        last = int(lines[-1].split(b",")[0])
+    except (IndexError, ValueError):
+        return None
+    nodes: dict[int, int] = {}
+    # errors="replace": a torn last line may end inside a character; it is not of step ``last``
+    with open(Path(directory) / "trajectory.csv", newline="", encoding="utf-8", errors="replace") as fh:
+        for row in csv.DictReader(fh):
+            if row.get("source") == "plan" and row.get("step") == str(last):
+                nodes[int(row["vehicle"])] = int(row["node"])
+    return [nodes[v] for v in range(vehicles)] if len(nodes) == vehicles else None

@@ -199,9 +199,14 @@ class MissionRunner:
         self.on_step(self.step, fleet)
 
     def _record_targets(self, targets: dict[int, int], fleet: Fleet) -> None:
-        """One decision: where each vehicle is sent, labelled with the step of its first hop."""
-        g, step = self.graph, self.step + 1
-        rows = [(step, v, t, g.lat[t], g.lon[t], fleet.mission_time) for v, t in sorted(targets.items())]
+        """One decision: where each vehicle is sent, labelled with the step of its first hop (a lost
+        vehicle is sent nowhere, whatever the planner said for it)."""
+        g, step, lost = self.graph, self.step + 1, fleet.lost
+        rows = [
+            (step, v, t, g.lat[t], g.lon[t], fleet.mission_time)
+            for v, t in sorted(targets.items())
+            if v not in lost
+        ]
         self.recorder.write_targets(step, rows)
 
     def _observation(self, fleet: Fleet, done: dict[int, bool]) -> Observation:

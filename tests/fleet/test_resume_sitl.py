@@ -77,3 +77,88 @@ def test_a_sitl_run_killed_mid_mission_resumes_to_the_sim_result(tmp_path, monke
     assert [r["after_step"] for r in manifest["resumes"]] == [killed_at]
     # nothing left running: the resumed run took its stack down too
     wait_for(lambda: not processes_marked(mark), 60, "the resumed run's stack is still up")
+
+
+def test_a_resumed_sitl_run_goes_on_with_the_boats_still_alive(tmp_path):
+    """A stack that outlives the run (``guadal stack up``); the run is killed, then one boat's
+    bridge: resume loses that boat with one sentence and completes with the other two."""
+    from guadal_cli.fleet.remote import RemoteFleet, SitlConfig
+    from guadal_cli.stack import Stack
+
+    mission = yaml.safe_load((ROOT / "missions" / "lake_greedy_sitl.yaml").read_text())
+    mission["map"] = str(ROOT / "maps" / "urban_lake.json")
+    mission["fleet"]["max_distance"] = 60
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump({**mission, "backend": {"level": "sim"}}))
+    prep = prepare(tmp_path / "m.yaml")
+    graph = prep.graph
+    homes = [(float(graph.lat[n]), float(graph.lon[n])) for n in prep.initial_nodes]
+    stack = Stack.launch(map_path=mission["map"], vehicles=3, homes=homes, speedup=200, timeout=60)
+    try:
+        mission["backend"] = {**stack.planner_backend(), "connect_timeout": 5}
+        (tmp_path / "m.yaml").write_text(yaml.safe_dump(mission))
+        out = tmp_path / "run"
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "guadal_cli", "run", str(tmp_path / "m.yaml"), "-o", str(out), "-q"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+        )
+        try:
+            wait_for(
+                lambda: (out / "metrics.csv").exists() and (out / "metrics.csv").read_text().count("\n") > 5,
+                180,
+                "the sitl run wrote no steps",
+            )
+        finally:
+            proc.send_signal(signal.SIGKILL)
+            proc.communicate(timeout=60)
+        killed_at = len(rows(out, "metrics.csv")) - 1
+        before = [r for r in rows(out, "measurements.csv") if int(r["step"]) <= killed_at]
+        bridge = next(p for p in stack.processes if p.name == "bridge-1")
+        bridge.signal(signal.SIGKILL)
+        assert bridge.wait(10)
+
+        done = run_cli("resume", out, "--json", timeout=600)
+        assert done.returncode == 0, done.stderr
+        assert json.loads(done.stdout)["status"] == "complete"
+        manifest = json.loads((out / "manifest.json").read_text())
+        assert [r["after_step"] for r in manifest["resumes"]] == [killed_at]
+        lost = [p for p in manifest["fleet"]["problems"] if p.startswith("vehicle 1 ")]
+        assert lost == [
+            "vehicle 1 did not answer within 5 s when the run resumed (no position); "
+            "the mission goes on without it."
+        ] or lost == [
+            "vehicle 1 did not answer within 5 s when the run resumed "
+            "(no live status on guadal/vehicle/1/status); the mission goes on without it."
+        ]
+        # no sample lost or taken twice; the lost boat takes none after the resume, the others go on
+        samples = rows(out, "measurements.csv")
+        assert samples[: len(before)] == before
+        assert len({(r["step"], r["vehicle"]) for r in samples}) == len(samples)
+        after = [r for r in samples if int(r["step"]) > killed_at]
+        assert {r["vehicle"] for r in after} == {"0", "2"}
+        plan = [r for r in rows(out, "trajectory.csv", "plan") if int(r["step"]) > killed_at]
+        assert len({(r["node"], r["distance"]) for r in plan if r["vehicle"] == "1"}) == 1  # stays put
+        # the boats' state as their bridges report it, and the lost boat's fault
+        state = [r for r in rows(out, "vehicles.csv") if int(r["step"]) > killed_at]
+        alive = [r for r in state if r["vehicle"] != "1"]
+        assert alive and all(r["mode"] == "GUIDED" and r["armed"] == "1" for r in alive)
+        assert all(0 <= float(r["battery"]) <= 100 and 0 <= float(r["link_age_s"]) < 5 for r in alive)
+        assert [r["fault"] for r in state if r["vehicle"] == "1"][-1] == lost[0]
+        assert {r["vehicle"] for r in rows(out, "targets.csv") if int(r["step"]) > killed_at} <= {"0", "2"}
+
+        # positions at resume come from the boats' GPS, not from the record: told a wrong node,
+        # each live boat goes on from the node nearest its fix, its recorded distance kept
+        far = max(range(graph.n_nodes), key=lambda n: graph.distance(n, prep.initial_nodes[0]))
+        config = SitlConfig(**{**stack.planner_backend(), "connect_timeout": 5})
+        fleet = RemoteFleet(graph, 3, 60.0, lambda v, node: float(node), config)
+        try:
+            fleet.restore({0: far, 1: far, 2: far}, {0: 10.0, 1: 20.0, 2: 30.0}, 50.0)
+            for v in (0, 2):
+                fix = fleet.vehicles[v].fix
+                assert fleet.positions[v] == graph.nearest_node(*fix) != far
+            assert fleet.positions[1] == far and set(fleet.lost) == {1}
+            assert fleet.distances == {0: 10.0, 1: 20.0, 2: 30.0} and fleet.mission_time >= 50.0
+        finally:
+            fleet.close()
+    finally:
+        stack.down()

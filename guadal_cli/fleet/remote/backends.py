@@ -26,7 +26,8 @@ class SitlBackend(Backend):
 
         if mission is None or getattr(graph.map, "source", None) is None:
             raise GuadalError("backend.launch needs the mission's map file to start the bridges.")
-        homes = [(float(graph.lat[n]), float(graph.lon[n])) for n in mission.initial_nodes]
+        nodes = mission.resume_nodes or mission.initial_nodes
+        homes = [(float(graph.lat[n]), float(graph.lon[n])) for n in nodes]
         stack = Stack.launch(
             map_path=graph.map.source,
             vehicles=fleet_config.vehicles,

@@ -78,8 +78,11 @@ class RemoteFleet(Fleet):
         return self._owner.connected
 
     # --- connection ------------------------------------------------------------------------------
-    def connect(self) -> None:
-        """Reach the broker, see every bridge online with a position, and start our session on each."""
+    def connect(self, with_whoever_answers: bool = False) -> None:
+        """Reach the broker, see every bridge online with a position, and start our session on each.
+
+        ``with_whoever_answers`` (a resumed run): a vehicle not ready within ``connect_timeout`` is
+        lost, with a sentence saying why, and the others go on; only a fleet with none is refused."""
         if self._started:
             return
         self._started = True
@@ -91,6 +94,8 @@ class RemoteFleet(Fleet):
                 f"cannot reach the MQTT broker at {self.broker_url} within {timeout:g} s "
                 f"({owner.last_connect_error}); is it running, and are backend.host/port/username right?"
             )
+        if with_whoever_answers:
+            return self._connect_whoever_answers(timeout)
         # a bridge is ready when its status is not offline (a failsafe from an earlier run ends with
         # the first goto) and it reports a position
         silent = lambda: [v.id for v in self.vehicles if v.state in ("unknown", "offline")]  # noqa: E731
@@ -117,43 +122,90 @@ class RemoteFleet(Fleet):
                 f"{self.session} within {timeout:g} s; their bridges log why (a different fleet key?)."
             )
 
+    def _connect_whoever_answers(self, timeout: float) -> None:
+        """(``connect`` for a resumed run.) One wait for everyone; the silent ones are lost."""
+        owner = self._owner
+
+        def why_not(v: RemoteVehicle) -> str | None:
+            if v.state in ("unknown", "offline"):
+                return f"no live status on {self.config.fleet}/vehicle/{v.id}/status"
+            if v.fix is None:
+                return "no position"
+            return None if v.synced else f"did not take session {self.session}"
+
+        owner.wait(lambda: not any(why_not(v) for v in self.vehicles), timeout)
+
+        def lose_the_silent():
+            for v in self.vehicles:
+                reason = why_not(v)
+                if reason:
+                    owner.vehicle_done(
+                        v,
+                        f"vehicle {v.id} did not answer within {timeout:g} s when the run resumed ({reason}); "
+                        "the mission goes on without it.",
+                    )
+
+        owner.call(lose_the_silent)
+        if len(self.lost) == self.n_vehicles:
+            raise GuadalError(
+                f"no vehicle answered on {self.broker_url} within {timeout:g} s, so the run cannot resume: "
+                f"{' '.join(self.lost.values())}"
+            )
+
     # --- the Fleet contract ------------------------------------------------------------------
     def reset(self, initial_nodes: Sequence[int]) -> None:
         """Bring every vehicle to its start node (not counted) and start the clocks there."""
         if len(initial_nodes) != self.n_vehicles:
             raise GuadalError(f"reset needs {self.n_vehicles} initial nodes, got {len(initial_nodes)}.")
         self.connect()
+        self._owner.call(lambda: [setattr(v, "problem", None) for v in self.vehicles])
+        self._start_at(dict(enumerate(int(n) for n in initial_nodes)))
+
+    def _start_at(self, nodes: Mapping[int, int]) -> None:
+        """Bring every vehicle still in the mission to its node (not counted) and start the clocks
+        there; a lost one only stands at its node."""
+        sailing = [v for v in self.vehicles if v.problem is None]
 
         def start():
-            for v, node in zip(self.vehicles, initial_nodes):
-                v.problem, v.distance, v.t0 = None, 0.0, None
-                self._goto(v, int(node), count_distance=False)
+            for v in sailing:
+                v.distance, v.t0 = 0.0, None
+                self._goto(v, nodes[v.id], count_distance=False)
 
         self._owner.call(start)
         timeout = self.config.reset_timeout
-        if not self._owner.wait(lambda: all(not v.goto.open for v in self.vehicles), timeout):
-            late = [f"{v.id} (node {v.goto.node}, {v.goto.status})" for v in self.vehicles if v.goto.open]
+        if not self._owner.wait(lambda: all(not v.goto.open for v in sailing), timeout):
+            late = [f"{v.id} (node {v.goto.node}, {v.goto.status})" for v in sailing if v.goto.open]
             raise GuadalError(
                 f"vehicles {', '.join(late)} did not reach their start nodes within {timeout:g} s; "
                 "raise backend.reset_timeout or check the bridges."
             )
-        refused = [v.problem for v in self.vehicles if v.problem]
+        refused = [v.problem for v in sailing if v.problem]
         if refused:
             raise GuadalError(f"the fleet could not take its start positions: {' '.join(refused)}")
-        self._start_clocks()
+        self._start_clocks(sailing)
 
         def place():
-            for v, node in zip(self.vehicles, initial_nodes):
-                v.node, v.distance = int(node), 0.0
+            for v in self.vehicles:
+                v.node, v.distance = int(nodes[v.id]), 0.0
                 v.track.clear()
                 v.track_sampler.reset()
 
         self._owner.call(place)
 
     def restore(self, positions: Mapping[int, int], distances: Mapping[int, float], time_s: float) -> None:
-        """Take over a resumed run: every boat back to the node the record last saw it at (not
-        counted, as at reset), its distance as recorded, and its clock going on from ``time_s``."""
-        self.reset([int(positions[v.id]) for v in self.vehicles])
+        """Take over a resumed run with the boats that answer: each goes on from the node nearest
+        its GPS fix (where it really is; the short way there is not counted, as at reset), with
+        its distance as recorded and its clock going on from ``time_s``. A boat that does not
+        answer is lost and stays, for the planner, at the node the record last saw it at."""
+        self.connect(with_whoever_answers=True)
+
+        def where():
+            return {
+                v.id: int(positions[v.id]) if v.problem else self.graph.nearest_node(*v.fix)
+                for v in self.vehicles
+            }
+
+        self._start_at(self._owner.call(where))
 
         def carry_on():
             for v in self.vehicles:
@@ -167,7 +219,7 @@ class RemoteFleet(Fleet):
     def synthetic_measurements(self) -> bool:
         return self.config.measurements == "synthetic"
 
-    def _start_clocks(self) -> None:
+    def _start_clocks(self, vehicles: list[RemoteVehicle]) -> None:
         """Read every vehicle's clock now that all are in place: mission time starts here.
 
         Each autopilot has its own clock, so each gets its own origin. Asking the start goto
@@ -176,17 +228,15 @@ class RemoteFleet(Fleet):
         """
 
         def ask():
-            for v in self.vehicles:
+            for v in vehicles:
                 v.syncing = True
                 self._owner.send(v, v.goto)
 
         self._owner.call(ask)
-        self._owner.wait(
-            lambda: not any(v.syncing for v in self.vehicles), min(5.0, self.config.reset_timeout)
-        )
+        self._owner.wait(lambda: not any(v.syncing for v in vehicles), min(5.0, self.config.reset_timeout))
 
         def settle():
-            for v in self.vehicles:
+            for v in vehicles:
                 if v.syncing:  # no fresh answer: the latest reading will do
                     log.warning(
                         "vehicle %d did not repeat its start ack; its clock starts at its last reading", v.id
