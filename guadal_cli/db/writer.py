@@ -224,7 +224,10 @@ class DatabaseWriter(RecordSink):
         except Exception as exc:  # whatever it was, the rows stay spooled, never lost
             if self.last_error_ is None:
                 self.outages_ += 1
-                log.warning("database %s is unavailable, spooling rows: %s", self.shown_url, _first_line(exc))
+                # a SQLite file locked by another writer is a turn to wait, not an outage: only say
+                # so if the rows are still not in when the mission ends (the warning in _loop)
+                say = log.info if "database is locked" in str(exc) else log.warning
+                say("database %s is unavailable, spooling rows: %s", self.shown_url, _first_line(exc))
             self.last_error_ = _first_line(exc)
             return False
         if self.last_error_ is not None:
