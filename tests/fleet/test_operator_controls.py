@@ -103,3 +103,69 @@ def test_signed_controls_on_the_topic_hold_a_boat_then_abort_the_mission(stack, 
     held = {r["node"] for r in plan if r["vehicle"] == "1" and int(r["step"]) > held_from}
     moving = {r["node"] for r in plan if r["vehicle"] == "0" and int(r["step"]) > held_from}
     assert len(held) == 1 and len(moving) > 1
+
+
+def test_a_resumed_run_takes_controls_on_the_topic(stack, tmp_path):
+    """After a kill -9 and ``guadal resume``, the resumed planner's session takes the operator's
+    hold (the boat's bridge is told to HOLD) and abort, as a new run's would."""
+    mission = base_mission(backend={**stack.planner_backend(), "offline_grace": 20})
+    mission["fleet"].update(vehicles=N, max_distance=3000.0)
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(mission))
+    run_dir = tmp_path / "run"
+    operator = Inbox(stack.broker_port, login=login(stack, "operator"))
+    key = msg.Codec(stack.secrets.key_file.read_text().strip().encode())
+    control = msg.topic("guadal", None, "control")
+    status_topic = msg.topic("guadal", None, "status")
+    boat_status = msg.topic("guadal", 1, "status")
+    operator.subscribe(status_topic, boat_status)
+
+    def sessions() -> list[str]:
+        online = [json.loads(m.payload) for m in operator.on(status_topic)]
+        return list(dict.fromkeys(s["session"] for s in online if s.get("state") == "online"))
+
+    def start(*args):
+        return subprocess.Popen(
+            [sys.executable, "-m", "guadal_cli", *args, "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        )
+
+    proc = start("run", str(path), "-o", str(run_dir))
+    try:
+        wait_for(
+            lambda: (run_dir / "metrics.csv").exists() and len(_rows(run_dir / "metrics.csv")) > 3,
+            60,
+            "the mission's first steps",
+        )
+        proc.kill()
+        proc.wait()
+        killed_at = len(_rows(run_dir / "metrics.csv")) - 1
+        proc = start("resume", str(run_dir))
+        wait_for(lambda: len(sessions()) == 2, 60, "the resumed planner's session")
+        wait_for(lambda: len(_rows(run_dir / "metrics.csv")) > killed_at + 3, 60, "steps after the resume")
+        session = sessions()[-1]
+        held_at = len(operator.on(boat_status))
+        operator.client.publish(
+            control, key.encode(control, "control", session=session, id="h1", action="hold", vehicle=1), qos=1
+        ).wait_for_publish(10)
+        operator.wait(
+            lambda: any(json.loads(m.payload)["state"] == "hold" for m in operator.on(boat_status)[held_at:]),
+            30,
+            "boat 1's bridge in HOLD",
+        )
+        operator.client.publish(
+            control, key.encode(control, "control", session=session, id="a1", action="abort"), qos=1
+        ).wait_for_publish(10)
+        assert proc.wait(timeout=120) == 0, proc.stderr.read()
+    finally:
+        operator.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    assert manifest["status"] == "interrupted" and [r["after_step"] for r in manifest["resumes"]] == [
+        killed_at
+    ]
+    assert [(e["kind"], e["action"], e["vehicle"]) for e in manifest["events"]] == [
+        ("control", "hold", 1),
+        ("control", "abort", None),
+    ]
