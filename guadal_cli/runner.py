@@ -181,7 +181,7 @@ class MissionRunner:
             for v, node in sorted(fleet.positions.items())
         ]
         meas = [(self.step, m.vehicle, m.node, m.lat, m.lon, m.value, m.time_s) for m in measurements]
-        self.recorder.write_vehicles(self.step, self.status.rows(self.step, fleet))
+        self._record_status(fleet)
         self.recorder.write_step(self.step, row, traj, meas)
         track = fleet.track_rows()
         if track:
@@ -197,6 +197,10 @@ class MissionRunner:
             self._share_fields_at = time.monotonic() + _SHARE_FIELDS_EVERY_S
             self.recorder.share_fields(self.step, self.environment.observation_fields())
         self.on_step(self.step, fleet)
+
+    def _record_status(self, fleet: Fleet) -> None:
+        """The boats' state, when due: after every hop, and while a remote fleet waits for one."""
+        self.recorder.write_vehicles(self.step, self.status.rows(self.step, fleet))
 
     def _record_targets(self, targets: dict[int, int], fleet: Fleet) -> None:
         """One decision: where each vehicle is sent, labelled with the step of its first hop (a lost
@@ -316,6 +320,7 @@ class MissionRunner:
             fleet = self.backend.make_fleet(
                 graph=self.graph, fleet_config=self.mission.fleet, sensor=self.environment.sense, mission=prep
             )
+            fleet.while_waiting = lambda: self._record_status(fleet)  # the fleet as run (replayed or not)
             if self.recorder.replay_until >= 0:
                 record = read_record(self.output, self.recorder.replay_until)
                 fleet = ReplayFleet(

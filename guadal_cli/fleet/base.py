@@ -42,6 +42,9 @@ class Fleet(ABC):
     """N vehicles on one graph, each with a position, a travelled distance and a budget."""
 
     n_vehicles: int
+    #: set by the runner: a fleet that waits for its vehicles (a hop, a measurement under way) calls
+    #: it on the mission's thread about once a second meanwhile; simulated vehicles never keep it waiting
+    while_waiting: Callable[[], None] | None = None
 
     @abstractmethod
     def reset(self, initial_nodes: Sequence[int]) -> None:

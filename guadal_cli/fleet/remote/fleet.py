@@ -282,7 +282,8 @@ class RemoteFleet(Fleet):
             moving.append(v)
         self._owner.call(lambda: [self._goto(v, node) for v, node in hops])
         timeout = self.config.hop_timeout
-        if not self._owner.wait(lambda: all(not v.goto.open or v.problem for v in moving), timeout):
+        hops_ended = lambda: all(not v.goto.open or v.problem for v in moving)  # noqa: E731
+        if not self._owner.wait(hops_ended, timeout, tick=self.while_waiting):
             late = next(v for v in moving if v.goto.open and not v.problem)
             raise GuadalError(self._late_sentence(late, timeout))
         reached = {vid: self.vehicles[vid].node == int(t) for vid, t in targets.items()}
@@ -328,7 +329,8 @@ class RemoteFleet(Fleet):
         asked = [self.vehicles[vid] for vid in ids if self.vehicles[vid].problem is None]
         self._owner.call(lambda: [self._owner.issue(v, "measure", v.node) for v in asked])
         timeout = self.config.measure_timeout
-        if not self._owner.wait(lambda: all(not v.measure.open or v.problem for v in asked), timeout):
+        answered = lambda: all(not v.measure.open or v.problem for v in asked)  # noqa: E731
+        if not self._owner.wait(answered, timeout, tick=self.while_waiting):
             late = [str(v.id) for v in asked if v.measure.open and not v.problem]
             raise GuadalError(
                 f"vehicle {', '.join(late)} sent no measurement within {timeout:g} s; "

@@ -100,15 +100,30 @@ class FleetOwner:
                     with self.cond:
                         return fn()
 
-    def wait(self, predicate: Callable[[], bool], timeout: float) -> bool:
+    def wait(
+        self,
+        predicate: Callable[[], bool],
+        timeout: float,
+        tick: Callable[[], None] | None = None,
+        every_s: float = 1.0,
+    ) -> bool:
+        """Wait until ``predicate()`` holds (True) or ``timeout`` passes (False); meanwhile call
+        ``tick`` every ``every_s`` seconds on the waiting thread, without holding the state lock."""
         deadline = time.monotonic() + timeout
-        with self.cond:
-            while not predicate():
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self.cond.wait(min(left, 0.25))
-        return True
+        next_tick = time.monotonic() + every_s
+        while True:
+            with self.cond:
+                while not predicate():
+                    now = time.monotonic()
+                    if now >= deadline:
+                        return False
+                    if tick is not None and now >= next_tick:
+                        break
+                    self.cond.wait(min(deadline - now, next_tick - now if tick else 0.25, 0.25))
+                else:
+                    return True
+            tick()
+            next_tick = time.monotonic() + every_s
 
     def _serve(self) -> None:
         tick = self.config.ping_interval / 4
