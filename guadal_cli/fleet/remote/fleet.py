@@ -161,9 +161,10 @@ class RemoteFleet(Fleet):
         self._owner.call(lambda: [setattr(v, "problem", None) for v in self.vehicles])
         self._start_at(dict(enumerate(int(n) for n in initial_nodes)))
 
-    def _start_at(self, nodes: Mapping[int, int]) -> None:
+    def _start_at(self, nodes: Mapping[int, int], with_whoever_answers: bool = False) -> None:
         """Bring every vehicle still in the mission to its node (not counted) and start the clocks
-        there; a lost one only stands at its node."""
+        there; a lost one only stands at its node. ``with_whoever_answers``: a vehicle that does not
+        get there in time, or refuses, is lost instead of stopping the fleet."""
         sailing = [v for v in self.vehicles if v.problem is None]
 
         def start():
@@ -173,12 +174,30 @@ class RemoteFleet(Fleet):
 
         self._owner.call(start)
         timeout = self.config.reset_timeout
-        if not self._owner.wait(lambda: all(not v.goto.open for v in sailing), timeout):
+        ended = lambda: all(not v.goto.open or v.problem for v in sailing)  # noqa: E731
+        if not self._owner.wait(ended, timeout) and not with_whoever_answers:
             late = [f"{v.id} (node {v.goto.node}, {v.goto.status})" for v in sailing if v.goto.open]
             raise GuadalError(
                 f"vehicles {', '.join(late)} did not reach their start nodes within {timeout:g} s; "
                 "raise backend.reset_timeout or check the bridges."
             )
+        if with_whoever_answers:
+
+            def lose_the_late():
+                for v in sailing:
+                    if v.goto.open and v.problem is None:
+                        self._owner.vehicle_done(
+                            v,
+                            f"vehicle {v.id} did not reach node {v.goto.node} within {timeout:g} s when the "
+                            "run resumed; the mission goes on without it.",
+                        )
+
+            self._owner.call(lose_the_late)
+            sailing = [v for v in sailing if v.problem is None]
+            if not sailing:
+                raise GuadalError(
+                    f"no vehicle could take over the resumed run: {' '.join(self.lost.values())}"
+                )
         refused = [v.problem for v in sailing if v.problem]
         if refused:
             raise GuadalError(f"the fleet could not take its start positions: {' '.join(refused)}")
@@ -205,7 +224,7 @@ class RemoteFleet(Fleet):
                 for v in self.vehicles
             }
 
-        self._start_at(self._owner.call(where))
+        self._start_at(self._owner.call(where), with_whoever_answers=True)
 
         def carry_on():
             for v in self.vehicles:
