@@ -1,10 +1,9 @@
-"""The mission loop: planner -> fleet -> measurements -> environment -> run directory.
+"""A mission into a run directory: planner -> Episode -> recorder, with signals, resume and controls.
 
-The runner drives every fleet one hop (one graph edge) at a time. In ``target`` mode it walks
-each vehicle along the shortest water path to its target, measuring at every node, and updates
-the model when all have arrived; in ``sequential`` mode targets are neighbours and the model is
-updated after every hop. Because hops, collision rules and budgets live here, a local and a
-remote fleet see exactly the same sequence of nodes.
+The rules of the mission loop (hops, conflicts, budgets, modes, stop reasons) live in
+:class:`~guadal_cli.episode.Episode`; the runner asks the planner for each decision, records
+every hop the episode reports, lets operators pause, hold or abort between hops, and turns
+interrupts into a run directory that ``guadal resume`` can continue.
 """
 
 from __future__ import annotations
@@ -16,27 +15,18 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from . import plugins
 from .controls import FleetInbox, MissionAborted, OperatorControls
-from .envs.base import Observation
+from .episode import Episode
 from .errors import GuadalError
 from .fleet.base import Fleet, Measurement
 from .fleet.status import StatusSampler
 from .mission import Prepared
-from .planners.base import SEQUENTIAL
 from .records import RunRecorder, file_sha256
 from .resume import ReplayFleet, read_record
 
 #: live viewers get the model's maps at most this often (wall clock; the CSVs do not depend on it)
 _SHARE_FIELDS_EVERY_S = 1.0
-#: steps a vehicle may wait for a blocked node before it looks for another way round
-_WAIT_BEFORE_REROUTE = 2
-#: steps after which a blocked target is given up
-_WAIT_BEFORE_GIVING_UP = 6
-#: decisions in a row that move nobody (targets blocked for good) before the mission ends
-_IDLE_DECISIONS_BEFORE_STOP = 3
 
 
 @dataclass
@@ -45,25 +35,6 @@ class RunResult:
     status: str
     steps: int
     final_metrics: dict
-
-
-class CoverageTracker:
-    """Fraction of nodes within a radius of at least one sample."""
-
-    def __init__(self, graph, radius_m: float):
-        self.graph = graph
-        self.radius = radius_m
-        self.covered = np.zeros(graph.n_nodes, dtype=bool)
-        self._seen: set[int] = set()
-
-    def add(self, node: int) -> None:
-        if node not in self._seen:
-            self._seen.add(node)
-            self.covered[self.graph.nodes_within(node, self.radius)] = True
-
-    @property
-    def value(self) -> float:
-        return float(self.covered.mean())
 
 
 def metric_columns(n_vehicles: int, env_metrics) -> list[str]:
@@ -114,14 +85,15 @@ class MissionRunner:
         self.planner.reset(self.graph, self.mission.fleet.vehicles, prep.mode, prep.planner_seed)
         self.backend = prep.backend_cls(prep.backend_config)
         self.n = self.mission.fleet.vehicles
-        self.allow_shared = self.mission.fleet.allow_shared_nodes
-        self.coverage = CoverageTracker(self.graph, self.mission.output.coverage_radius)
-        self.visits = np.zeros(self.graph.n_nodes, dtype=int)
-        self.samples = 0
-        self.step = 0
+        self.episode: Episode | None = None
         self.stop_reason = ""
         self._share_fields_at = 0.0
         self.status = StatusSampler()
+
+    @property
+    def step(self) -> int:
+        """Steps (hops) recorded so far."""
+        return self.episode.step_count if self.episode is not None else 0
 
     # --- bookkeeping -----------------------------------------------------------------------
     def _manifest(self) -> dict:
@@ -154,15 +126,12 @@ class MissionRunner:
             "database": redact(self.database),
         }
 
-    def _record(self, fleet: Fleet, measurements: list[Measurement]) -> None:
-        for m in measurements:
-            self.coverage.add(m.node)
-            self.visits[m.node] += 1
-        self.samples += len(measurements)
+    def _record(self, ep: Episode, fleet: Fleet, measurements: list[Measurement]) -> None:
+        """One step into the run directory (and the database): the episode has counted it."""
         dist = fleet.distances
         row = {"step": self.step, "time_s": fleet.mission_time}
         row.update({f"distance_v{v}": dist[v] for v in range(self.n)})
-        row.update(total_distance=sum(dist.values()), samples=self.samples, coverage=self.coverage.value)
+        row.update(total_distance=sum(dist.values()), samples=ep.samples, coverage=ep.coverage)
         row.update(self.environment.metrics())
         g = self.graph
         traj = [
@@ -202,7 +171,7 @@ class MissionRunner:
         """The boats' state, when due: after every hop, and while a remote fleet waits for one."""
         self.recorder.write_vehicles(self.step, self.status.rows(self.step, fleet))
 
-    def _record_targets(self, targets: dict[int, int], fleet: Fleet) -> None:
+    def _record_targets(self, ep: Episode, fleet: Fleet, targets: dict[int, int]) -> None:
         """One decision: where each vehicle is sent, labelled with the step of its first hop (a lost
         vehicle is sent nowhere, whatever the planner said for it)."""
         g, step, lost = self.graph, self.step + 1, fleet.lost
@@ -212,82 +181,6 @@ class MissionRunner:
             if v not in lost
         ]
         self.recorder.write_targets(step, rows)
-
-    def _observation(self, fleet: Fleet, done: dict[int, bool]) -> Observation:
-        return Observation(
-            step=self.step,
-            time_s=fleet.mission_time,
-            graph=self.graph,
-            positions=dict(fleet.positions),
-            remaining=fleet.remaining(),
-            done=dict(done),
-            visits=self.visits.copy(),
-            fields=self.environment.observation_fields(),
-            task=self.environment.task_state(),
-        )
-
-    # --- planning checks -------------------------------------------------------------------
-    def _check_targets(self, targets: dict, positions: dict) -> dict[int, int]:
-        name = self.mission.algorithm.type
-        clean = {}
-        for v, node in targets.items():
-            if not (isinstance(v, (int, np.integer)) and 0 <= int(v) < self.n):
-                raise GuadalError(f"algorithm '{name}' named vehicle {v!r}; vehicles are 0..{self.n - 1}.")
-            if not (isinstance(node, (int, np.integer)) and 0 <= int(node) < self.graph.n_nodes):
-                raise GuadalError(
-                    f"algorithm '{name}' sent vehicle {v} to {node!r}, which is not a node id (0..{self.graph.n_nodes - 1})."
-                )
-            v, node = int(v), int(node)
-            if (
-                self.prep.mode == SEQUENTIAL
-                and node != positions[v]
-                and node not in self.graph.neighbors(positions[v])
-            ):
-                raise GuadalError(
-                    f"algorithm '{name}' sent vehicle {v} from node {positions[v]} to node {node} in sequential mode, "
-                    "where targets must be neighbours."
-                )
-            if not self.graph.same_component([positions[v], node]):
-                raise GuadalError(
-                    f"algorithm '{name}' sent vehicle {v} to node {node}, which cannot be reached over water."
-                )
-            clean[v] = node
-        return clean
-
-    def _next_hops(
-        self, paths: dict[int, list[int]], positions: dict[int, int], waits: dict[int, int], fleet: Fleet
-    ) -> dict[int, int]:
-        """One edge per vehicle with a path, resolving conflicts: the lower id goes first."""
-        remaining = fleet.remaining()
-        for v in list(paths):
-            if paths[v] and self.graph.edge_length(positions[v], paths[v][0]) > remaining[v] + 1e-9:
-                paths[v] = []  # the budget does not reach the next node
-        moving = {v: p[0] for v, p in paths.items() if p}
-        if self.allow_shared:
-            return moving
-        while True:
-            dest = {v: moving.get(v, positions[v]) for v in range(self.n)}
-            blocked = None
-            for v in sorted(moving):
-                others = [u for u in range(self.n) if u != v and dest[u] == dest[v]]
-                if others:
-                    blocked = v if any(u < v or u not in moving for u in others) else None
-                if blocked is not None:
-                    break
-            if blocked is None:
-                return moving
-            del moving[blocked]
-            waits[blocked] = waits.get(blocked, 0) + 1
-            self._after_block(blocked, paths, positions, waits)
-
-    def _after_block(self, v: int, paths, positions, waits) -> None:
-        if waits[v] >= _WAIT_BEFORE_GIVING_UP:
-            paths[v] = []
-        elif waits[v] >= _WAIT_BEFORE_REROUTE and paths[v]:
-            others = {positions[u] for u in range(self.n) if u != v}
-            detour = self.graph.shortest_path(positions[v], paths[v][-1], avoid=others)
-            if len(detour) > 1:
-                paths[v] = detour[1:]
 
     # --- the loop ----------------------------------------------------------------------------
     def run(self) -> RunResult:
@@ -326,14 +219,19 @@ class MissionRunner:
                 fleet = ReplayFleet(
                     fleet, record, self.graph, self.mission.fleet, self.environment.sense, str(self.output)
                 )
-            fleet.reset(prep.initial_nodes)
             self.operator = OperatorControls(
                 self._control_inboxes(fleet), self.recorder.record_event, self.n, hold=fleet.hold
             )
-            first = fleet.take_measurement()
-            self.environment.update(first)
-            self._record(fleet, first)
-            self._mission_loop(fleet)
+            self.episode = Episode(
+                prep,
+                fleet,
+                on_hop=self._record,
+                before_hop=self._between_hops,
+                on_decision=self._record_targets,
+            )
+            self.episode.reset()
+            self._record(self.episode, fleet, self.episode.last_measurements)
+            self._mission_loop(self.episode)
             status = "complete"
             if fleet.lost and len(fleet.lost) == self.n:  # no vehicle left: not a finished mission
                 status = "aborted"
@@ -382,68 +280,23 @@ class MissionRunner:
             inboxes.append(ControlInbox(make_engine(self.database), self.recorder.manifest["run_id"]))
         return inboxes
 
-    def _mission_loop(self, fleet: Fleet) -> None:
-        done = {v: False for v in range(self.n)}
-        idle_decisions = 0
-        while True:
-            if self.step >= self.mission.max_steps:
-                self.stop_reason = "max_steps reached"
-                return
+    def _between_hops(self, ep: Episode, fleet: Fleet) -> None:
+        """Operators' requests take effect at the next node; a held boat stays where it is."""
+        self.operator.check(fleet.mission_time, [v for v, done in ep.done.items() if not done])
+        for v in self.operator.held:
+            ep.hold(v)  # the planner decides again for it later
+
+    def _mission_loop(self, ep: Episode) -> None:
+        """Decisions until the episode or the planner says stop; each hop is recorded by ``on_hop``."""
+        while not ep.truncated:  # max_steps first, then the planner, then the episode's reasons
             if self.planner.done:
                 self.stop_reason = "the algorithm finished"
                 return
-            if all(done.values()):
-                self.stop_reason = "every vehicle spent its budget"
-                return
-            if idle_decisions >= _IDLE_DECISIONS_BEFORE_STOP:
-                self.stop_reason = f"the algorithm's last {idle_decisions} decisions moved no vehicle"
-                return
-            self.operator.check(fleet.mission_time, [v for v in done if not done[v]])
-            positions = dict(fleet.positions)
-            targets = self._check_targets(
-                self.planner.next_targets(self._observation(fleet, done)), positions
-            )
-            targets = {v: t for v, t in targets.items() if not done[v] and t != positions[v]}
-            if not targets:
+            if ep.stop_reason:
+                break
+            self.operator.check(ep.fleet.mission_time, [v for v, done in ep.done.items() if not done])
+            *_, info = ep.step(self.planner.next_targets(ep.observation()))
+            if not info["targets"]:
                 self.stop_reason = "the algorithm sent no more targets"
                 return
-            self._record_targets(targets, fleet)
-            step_before = self.step
-            paths = {v: self.graph.shortest_path(positions[v], t)[1:] for v, t in targets.items()}
-            pending: list[Measurement] = []
-            waits: dict[int, int] = {}
-            while any(paths.values()) and self.step < self.mission.max_steps:
-                self.operator.check(fleet.mission_time, [v for v in done if not done[v]])
-                for v in self.operator.held:
-                    paths[v] = []  # a held boat stays at its node; the planner decides again for it later
-                hops = self._next_hops(paths, positions, waits, fleet)
-                if not hops:
-                    if not any(paths.values()):
-                        break
-                    continue  # only waiting vehicles this round: their counters advanced
-                reached = {v: False for v in hops}
-                while not all(reached.values()):
-                    reached, done = fleet.move(hops)
-                    reached = {v: reached.get(v, False) or done.get(v, False) for v in hops}
-                positions = dict(fleet.positions)
-                moved = [v for v, node in hops.items() if positions[v] == node]
-                for v in hops:
-                    if v in moved:
-                        paths[v].pop(0)
-                        waits.pop(v, None)
-                    else:
-                        paths[v] = []  # the vehicle could not make the hop (budget, failsafe)
-                self.step += 1
-                self.environment.advance(fleet.mission_time)
-                measurements = fleet.take_measurement(moved)
-                if self.prep.mode == SEQUENTIAL:
-                    self.environment.update(measurements)
-                else:
-                    pending.extend(measurements)
-                    if not any(paths.values()):
-                        self.environment.update(pending)
-                        pending = []
-                self._record(fleet, measurements)
-            if pending:
-                self.environment.update(pending)
-            idle_decisions = idle_decisions + 1 if self.step == step_before else 0
+        self.stop_reason = ep.stop_reason
