@@ -88,6 +88,54 @@ class Fleet(ABC):
     def remaining(self) -> dict[int, float]:
         return {v: self.max_distance - d for v, d in self.distances.items()}
 
+    # --- the rules every fleet applies the same way (they need ``self.graph``) ---------------
+    def check_initial_nodes(self, initial_nodes: Sequence[int]) -> None:
+        """``reset`` takes exactly one start node per vehicle."""
+        if len(initial_nodes) != self.n_vehicles:
+            raise GuadalError(f"reset needs {self.n_vehicles} initial nodes, got {len(initial_nodes)}.")
+
+    def cannot_move(self, node: int, distance: float) -> bool:
+        """True when no neighbour of ``node`` lies within the budget left after ``distance`` metres."""
+        graph = self.graph
+        nbrs = graph.neighbors(node)
+        remaining = self.max_distance - distance
+        return not nbrs or min(graph.edge_length(node, n) for n in nbrs) > remaining + 1e-9
+
+    def stuck(self) -> dict[int, bool]:
+        """Per vehicle: True when it cannot move (see :meth:`cannot_move`)."""
+        distances = self.distances
+        return {v: self.cannot_move(node, distances[v]) for v, node in self.positions.items()}
+
+    def next_hop(self, vehicle: int, node: int, target: int, distance: float) -> int | None:
+        """The first node after ``node`` on the shortest water path to ``target``, or None when
+        that edge would overrun the budget (the hop is not taken)."""
+        path = self.graph.shortest_path(node, target)
+        if len(path) < 2:
+            raise GuadalError(f"vehicle {vehicle} cannot reach node {target} from node {node} over water.")
+        nxt = path[1]
+        if self.graph.edge_length(node, nxt) > self.max_distance - distance + 1e-9:
+            return None
+        return nxt
+
+    def synthetic_measurements_at(self, vehicles: Sequence[int], time_s: float) -> list[Measurement]:
+        """One sample per vehicle from the environment's sensor (``self.sensor``) at its node."""
+        if self.sensor is None:
+            raise GuadalError(
+                "backend.measurements is 'synthetic', but the environment has no synthetic sensor."
+            )
+        graph, positions = self.graph, self.positions
+        return [
+            Measurement(
+                vehicle=vid,
+                node=(node := positions[vid]),
+                value=float(self.sensor(vid, node)),
+                lat=float(graph.lat[node]),
+                lon=float(graph.lon[node]),
+                time_s=time_s,
+            )
+            for vid in vehicles
+        ]
+
     @property
     def lost(self) -> dict[int, str]:
         """Vehicles out of the mission through a fault (offline, failsafe, refused), with the

@@ -155,8 +155,7 @@ class RemoteFleet(Fleet):
     # --- the Fleet contract ------------------------------------------------------------------
     def reset(self, initial_nodes: Sequence[int]) -> None:
         """Bring every vehicle to its start node (not counted) and start the clocks there."""
-        if len(initial_nodes) != self.n_vehicles:
-            raise GuadalError(f"reset needs {self.n_vehicles} initial nodes, got {len(initial_nodes)}.")
+        self.check_initial_nodes(initial_nodes)
         self.connect()
         self._owner.call(lambda: [setattr(v, "problem", None) for v in self.vehicles])
         self._start_at(dict(enumerate(int(n) for n in initial_nodes)))
@@ -275,14 +274,8 @@ class RemoteFleet(Fleet):
             lon=float(self.graph.lon[node]),
         )
 
-    def _cannot_move(self, v: RemoteVehicle) -> bool:
-        """Same rule as the local fleet: no neighbour within the remaining budget."""
-        remaining = self._max_distance - v.distance
-        nbrs = self.graph.neighbors(v.node)
-        return not nbrs or min(self.graph.edge_length(v.node, n) for n in nbrs) > remaining + 1e-9
-
     def _done(self) -> dict[int, bool]:
-        return {v.id: v.problem is not None or self._cannot_move(v) for v in self.vehicles}
+        return {v.id: v.problem is not None or self.cannot_move(v.node, v.distance) for v in self.vehicles}
 
     def move(self, targets: Mapping[int, int]) -> tuple[dict[int, bool], dict[int, bool]]:
         """One edge towards each target, all vehicles at once; returns when every hop ended."""
@@ -292,12 +285,10 @@ class RemoteFleet(Fleet):
             v, target = self.vehicles[vid], int(target)
             if v.problem is not None or v.node == target:
                 continue
-            path = self.graph.shortest_path(v.node, target)
-            if len(path) < 2:
-                raise GuadalError(f"vehicle {v.id} cannot reach node {target} from node {v.node} over water.")
-            if self.graph.edge_length(v.node, path[1]) > self._max_distance - v.distance + 1e-9:
+            nxt = self.next_hop(v.id, v.node, target, v.distance)
+            if nxt is None:
                 continue  # the hop would overrun the budget: not taken, as in simulation
-            hops.append((v, path[1]))
+            hops.append((v, nxt))
             moving.append(v)
         self._owner.call(lambda: [self._goto(v, node) for v, node in hops])
         timeout = self.config.hop_timeout
@@ -326,22 +317,7 @@ class RemoteFleet(Fleet):
     def take_measurement(self, vehicles: Sequence[int] | None = None) -> list[Measurement]:
         ids = list(range(self.n_vehicles) if vehicles is None else vehicles)
         if self.config.measurements == "synthetic":
-            if self.sensor is None:
-                raise GuadalError(
-                    "backend.measurements is 'synthetic', but the environment has no synthetic sensor."
-                )
-            now = self.mission_time
-            return [
-                Measurement(
-                    vehicle=vid,
-                    node=(n := self.vehicles[vid].node),
-                    value=float(self.sensor(vid, n)),
-                    lat=float(self.graph.lat[n]),
-                    lon=float(self.graph.lon[n]),
-                    time_s=now,
-                )
-                for vid in ids
-            ]
+            return self.synthetic_measurements_at(ids, self.mission_time)
         return self._measure_on_vehicles(ids)
 
     def _measure_on_vehicles(self, ids: list[int]) -> list[Measurement]:
