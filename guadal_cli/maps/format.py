@@ -162,6 +162,34 @@ class Map:
             self._check_spacing()
         self._check_range()
 
+    @classmethod
+    def from_grids(cls, mask, lat, lon, name: str = "", description: str = "") -> Map:
+        """A map whose cells are exactly the mask's (1 or True = water), each centred at the given
+        ``lat``/``lon`` matrices: a discretization made elsewhere, taken as it is (no resampling).
+        The nominal cell size is the median spacing of neighbouring centres."""
+        mask = np.asarray(mask)
+        if mask.dtype != bool:
+            if mask.size and not np.isin(mask, (0, 1)).all():
+                raise GuadalError("a map's mask must hold 0 (land) and 1 (water) only.")
+            mask = mask.astype(bool)
+        lat, lon = np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
+        if lat.shape != mask.shape or lon.shape != mask.shape:
+            raise GuadalError(
+                f"the lat and lon matrices must have the mask's shape {mask.shape} (got {lat.shape} and {lon.shape})."
+            )
+        gaps = [haversine_m(lat[:, :-1], lon[:, :-1], lat[:, 1:], lon[:, 1:]).ravel()]
+        gaps.append(haversine_m(lat[:-1], lon[:-1], lat[1:], lon[1:]).ravel())
+        gaps_m = np.concatenate(gaps) if any(g.size for g in gaps) else np.array([MIN_CELL_SIZE_M])
+        row, col = mask.shape[0] // 2, mask.shape[1] // 2
+        return cls(
+            mask=mask,
+            cell_size_m=float(np.median(gaps_m)),
+            reference={"row": row, "col": col, "lat": float(lat[row, col]), "lon": float(lon[row, col])},
+            name=name,
+            description=description,
+            latlon_grid=(lat, lon),
+        )
+
     def _check_range(self) -> None:
         if not (np.all(np.abs(self.lat) <= 90) and np.all(np.abs(self.lon) <= 180)):  # NaN fails too
             raise GuadalError(
