@@ -1,7 +1,7 @@
 """The Fleet contract shared by every backend level.
 
 Local and remote fleets are interchangeable behind it; that interchangeability is the product.
-The runner drives a fleet one *hop* (one graph edge) at a time, exactly as the paper's loop::
+The Episode (guadal_cli/episode.py) drives a fleet one *hop* (one graph edge) at a time, exactly as the paper's loop::
 
     while not all(reached.values()):
         reached, done = fleet.move(targets)
