@@ -329,6 +329,8 @@ def check_planner_requires_are_provided(p: Plugin) -> None:
 
 
 def _episode(p: Plugin, mode: str, n_vehicles: int = 3, seed: int = 5):
+    """An Episode of the planner on the check pond, prepared as ``prepare_dict`` would (the planner's
+    ``for_mission`` included: a GuadalError from it means the config refuses ``mode``)."""
     from .episode import Episode
     from .fleet.local import SimBackend, SimConfig
     from .mission import Mission, Prepared, mission_seeds
@@ -352,19 +354,23 @@ def _episode(p: Plugin, mode: str, n_vehicles: int = 3, seed: int = 5):
             "max_steps": 400,
         }
     )
+    base_dir = Path(p.base_dir or Path.cwd())
+    config = p.cls.for_mission(
+        p.config, mission=mission, graph=graph, mode=mode, base_dir=base_dir, provides=env_plugin.cls.provides
+    )
     env_seed, planner_seed = mission_seeds(seed)
     env = env_plugin.cls(env_plugin.config, graph, base_dir=p.base_dir)
     env.reset(env_seed)
     prep = Prepared(
         mission=mission,
         path=Path("conformance"),
-        base_dir=Path(p.base_dir or "."),
+        base_dir=base_dir,
         map=graph.map,
         graph=graph,
         environment_cls=env_plugin.cls,
         environment_config=env_plugin.config,
         algorithm_cls=p.cls,
-        algorithm_config=p.config,
+        algorithm_config=config,
         mode=mode,
         backend_cls=SimBackend,
         backend_config=SimConfig(),
@@ -376,17 +382,35 @@ def _episode(p: Plugin, mode: str, n_vehicles: int = 3, seed: int = 5):
     return Episode(prep)
 
 
-def _play(p: Plugin, planner, mode: str) -> list[dict]:
-    """Targets of up to DECISIONS decisions in an Episode (which checks them, raising on a bad one)."""
+def _modes(p: Plugin) -> list[str]:
+    """The declared modes whose missions the planner's ``for_mission`` accepts with this config
+    (a trained policy, say, plays only the mode it was trained in); at least one must be."""
+    accepted, refused = [], []
+    for mode in p.cls.modes:
+        try:
+            _episode(p, mode)
+        except GuadalError as exc:
+            refused.append(f"{mode} mode: {exc}")
+        else:
+            accepted.append(mode)
+    if not accepted:
+        raise _fail(p, "for_mission accepts its config in a mode it declares", " ".join(refused))
+    return accepted
+
+
+def _play(p: Plugin, mode: str, planner=None) -> tuple[list[dict], object]:
+    """Targets of up to DECISIONS decisions in an Episode (which checks them, raising on a bad
+    one), and the planner that made them (a new one unless given)."""
     ep = _episode(p, mode)
+    planner = planner or p.cls(ep.prep.algorithm_config)
     obs = ep.reset()
     planner.reset(ep.graph, ep.n_vehicles, mode, ep.planner_seed)
     decisions = []
     for _ in range(DECISIONS):
-        if planner.done or ep.stop_reason:
-            break
         if not isinstance(planner.done, bool):
             raise _fail(p, "done is a bool", repr(planner.done))
+        if planner.done or ep.stop_reason:
+            break
         targets = planner.next_targets(obs)
         if not isinstance(targets, dict):
             raise _fail(
@@ -399,15 +423,16 @@ def _play(p: Plugin, planner, mode: str) -> list[dict]:
         decisions.append({int(v): int(t) for v, t in targets.items()})
         if not info["targets"]:
             break
-    return decisions
+    return decisions, planner
 
 
 def check_planner_targets_are_valid(p: Plugin) -> None:
-    """In every mode it declares, ``next_targets`` returns ``{vehicle: node}`` that the Episode
-    accepts: known vehicles, nodes reachable over water, neighbours in sequential mode."""
-    for mode in p.cls.modes:
-        planner = p.cls(p.config)
-        if not _play(p, planner, mode):
+    """In every mode it accepts, ``next_targets`` returns ``{vehicle: node}`` that the Episode
+    accepts (known vehicles, nodes reachable over water, neighbours in sequential mode), and
+    moves some vehicle at its first decision."""
+    for mode in _modes(p):
+        decisions, _ = _play(p, mode)
+        if not decisions or not decisions[0]:
             raise _fail(
                 p, f"next_targets moves vehicles in {mode} mode", "it sent no target at the first decision"
             )
@@ -416,10 +441,9 @@ def check_planner_targets_are_valid(p: Plugin) -> None:
 def check_planner_is_deterministic(p: Plugin) -> None:
     """``reset`` forgets the last mission and seeds the planner: the same seed, the same decisions,
     whether the planner is new or has planned before."""
-    for mode in p.cls.modes:
-        planner = p.cls(p.config)
-        first = _play(p, planner, mode)
-        if _play(p, planner, mode) != first or _play(p, p.cls(p.config), mode) != first:
+    for mode in _modes(p):
+        first, planner = _play(p, mode)
+        if _play(p, mode, planner)[0] != first or _play(p, mode)[0] != first:
             raise _fail(
                 p, "reset(seed) makes decisions repeatable", f"two plays with one seed differ in {mode} mode"
             )

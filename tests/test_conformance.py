@@ -39,6 +39,7 @@ np.savetxt(DATA / "truth.csv", _graph.to_grid(np.arange(_graph.n_nodes) / 10.0, 
     "lat,lon,value\n" + "".join(f"{_graph.lat[n]},{_graph.lon[n]},{n}\n" for n in range(0, _graph.n_nodes, 4))
 )
 CONFIGS = {
+    ("algorithm", "policy"): {"model": "support.rl:std_ahead"},  # a hand-written sequential policy
     ("backend", "sitl"): {"level": "sitl", "launch": True, "speedup": 200},
     ("ground_truth", "file"): {"path": "truth.csv"},
     ("sensor", "synthetic"): {"path": "truth.csv", "noise_std": 0.1, "seed": 1},
