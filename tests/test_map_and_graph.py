@@ -126,6 +126,22 @@ def test_full_latlon_grid_maps_take_positions_from_coordinates(tmp_path):
     assert g.edge_length(g.node_at(0, 0), g.node_at(0, 1)) == pytest.approx(10.65, abs=0.05)
 
 
+def test_a_map_from_a_mask_and_latlon_matrices_keeps_every_cell_where_it_is(tmp_path):
+    lat = 37.0 + np.arange(3)[:, None] * -1e-4 + np.zeros((3, 4))
+    lon = -6.0 + np.arange(4)[None, :] * 1.2e-4 + np.zeros((3, 4))
+    mask = np.array([[1, 1, 1, 0], [1, 0, 1, 1], [1, 1, 1, 1]])
+    m = Map.from_grids(mask, lat, lon, name="pond")
+    m.save(tmp_path / "pond.json")
+    g = NavGraph(load_map(tmp_path / "pond.json"))
+    assert g.n_nodes == 10 and g.node_at(1, 1) is None and g.node_at(0, 3) is None
+    assert np.allclose(g.lat, lat[mask == 1]) and np.allclose(g.lon, lon[mask == 1])
+    assert m.cell_size_m == pytest.approx(10.65, abs=0.05)  # the median spacing of neighbours
+    with pytest.raises(GuadalError, match=r"^a map's mask must hold 0 \(land\) and 1 \(water\) only\.$"):
+        Map.from_grids(mask * 2, lat, lon)
+    with pytest.raises(GuadalError, match=r"must have the mask's shape \(3, 4\) \(got \(3, 3\)"):
+        Map.from_grids(mask, lat[:, :3], lon)
+
+
 @pytest.mark.parametrize(
     "content, fragment",
     [
