@@ -512,10 +512,12 @@ def check_backend_fleet(p: Plugin) -> None:
 
 @dataclass
 class _Started:
-    """The bits of a prepared mission a backend may read (its map file, its start nodes)."""
+    """The bits of a prepared mission a backend may read (its map file, its start nodes, where a
+    resumed run left its boats)."""
 
     graph: NavGraph
     initial_nodes: list[int]
+    resume_nodes: list[int] | None = None
 
 
 # --- ground truths ---------------------------------------------------------------------------------
