@@ -221,9 +221,7 @@ def test_one_failing_mission_does_not_stop_the_others_and_is_retried_up_to_the_l
     # then the limit is reached: nothing left to try
     last = run_cli("sweep", path, "--workers", "2", env=env)
     words = " ".join(last.stdout.split())  # the progress text wraps at the terminal's width
-    assert (
-        last.returncode == 1 and "0 to run" in words and "2 failed with no attempt left" in words
-    )
+    assert last.returncode == 1 and "0 to run" in words and "2 failed with no attempt left" in words
 
 
 def _start_sweep(path, *args):
