@@ -106,7 +106,7 @@ class GPEnvironment(Environment):
 
     def _blas(self):
         threads = self.config.model.blas_threads
-        return blas_controller().limit(limits=threads, user_api="blas") if threads else nullcontext()
+        return BlasThreads(threads) if threads else nullcontext()
 
     def reset(self, seed: int) -> None:
         truth_seq, noise_seq = np.random.SeedSequence(seed).spawn(2)
@@ -167,11 +167,14 @@ class GPEnvironment(Environment):
         return {"mean": self.model.mean, "std": self.model.std}
 
     def metrics(self) -> dict[str, float]:
+        # np.add.reduce(x) / n is np.mean(x) to the bit, without its per-call overhead (every step)
         std = self.model.std
-        rmse = (
-            math.nan if self._truth is None else float(np.sqrt(np.mean((self.model.mean - self._truth) ** 2)))
-        )
-        return {"rmse": rmse, "mean_std": float(std.mean()), "max_std": float(std.max())}
+        n = len(std)
+        rmse = math.nan
+        if self._truth is not None:
+            error = self.model.mean - self._truth
+            rmse = math.sqrt(np.add.reduce(error * error) / n)
+        return {"rmse": rmse, "mean_std": float(np.add.reduce(std) / n), "max_std": float(std.max())}
 
     @property
     def ground_truth(self) -> np.ndarray | None:
@@ -182,3 +185,30 @@ class GPEnvironment(Environment):
 def blas_controller() -> ThreadpoolController:
     """The BLAS libraries loaded (inspected once: ~1 ms, too much to repeat at every update)."""
     return ThreadpoolController()
+
+
+class BlasThreads:
+    """``threads`` BLAS threads inside the block, each library's own count restored after.
+
+    What ``blas_controller().limit(limits=threads, user_api="blas")`` does, but reading and
+    setting only the libraries' thread counts (~1 µs) instead of re-inspecting them (~10 µs):
+    the model is updated at every hop of the fleet.
+    """
+
+    def __init__(self, threads: int):
+        self.threads = threads
+        self._libraries = blas_controller().select(user_api="blas").lib_controllers
+        self._restore: list = []
+
+    def __enter__(self) -> BlasThreads:
+        for library in self._libraries:
+            before = library.num_threads
+            if before != self.threads:
+                library.set_num_threads(self.threads)
+                self._restore.append((library, before))
+        return self
+
+    def __exit__(self, *exc) -> None:
+        while self._restore:
+            library, before = self._restore.pop()
+            library.set_num_threads(before)

@@ -106,6 +106,7 @@ class IncrementalGP:
         self.n_ = 0
         self._mean_delta = np.zeros(n_points)
         self._var = np.full(n_points, self.kernel.variance)
+        self._mean = self._std = None  # the posterior as last read, until the next sample
 
     def memory_bytes(self, n_samples: int | None = None) -> int:
         """Bytes held with ``n_samples`` samples (default: now): the samples x nodes matrix
@@ -147,42 +148,44 @@ class IncrementalGP:
 
         ``point``: index of the prediction point the sample lies on, if any (the fast path).
         """
-        x = np.asarray(x, dtype=float).reshape(1, 2)
         n = self.n_
         if n == self._cap:
             self._grow()
-        k_star = (
-            self._kernel_row(point) if point is not None else kernel_matrix(self.kernel, x, self.points)[0]
-        )
-        k_xx = self.kernel.variance + self.kernel.noise
-        if n:
-            if point is not None:
-                l = self._V[:n, point].copy()  # L^-1 k(X, x) is V's column for that point
-            else:
-                k_x = kernel_matrix(self.kernel, x, self.X_)[0]
+        V, kernel = self._V, self.kernel
+        k_xx = kernel.variance + kernel.noise
+        v = V[n]  # the new row, computed in place
+        if point is not None:
+            x = self.points[point]
+            k_star = self._kernel_row(point)
+            l = V[:n, point]  # L^-1 k(X, x) is V's column for that point
+        else:
+            x = np.asarray(x, dtype=float).reshape(2)
+            k_star = kernel_matrix(kernel, x[None], self.points)[0]
+            l = np.zeros(0)
+            if n:
+                k_x = kernel_matrix(kernel, x[None], self.X_)[0]
                 l = solve_triangular(
                     np.ascontiguousarray(self._L[:n, :n]), k_x, lower=True, check_finite=False
                 )
+        if n:
             d2 = k_xx - l @ l
-            v = k_star - l @ self._V[:n]
+            np.subtract(k_star, l @ V[:n], out=v)
             z_prev = l @ self._z[:n]
+            self._L[n, :n] = l
         else:
-            l = np.zeros(0)
-            d2 = k_xx
-            v = k_star
-            z_prev = 0.0
+            d2, z_prev = k_xx, 0.0
+            v[:] = k_star
         d = math.sqrt(max(d2, 1e-12))
-        self._L[n, :n] = l
         self._L[n, n] = d
-        v = v / d
-        self._V[n] = v
+        v /= d
         z_n = (y - self.prior_mean - z_prev) / d
         self._z[n] = z_n
-        self._mean_delta += v * z_n
+        self._mean_delta += z_n * v
         self._var -= v * v
-        self._X[n] = x[0]
+        self._X[n] = x
         self._y[n] = y
         self.n_ = n + 1
+        self._mean = self._std = None
 
     def add_many(self, xs: np.ndarray, ys, points=None) -> None:
         xs = np.asarray(xs, dtype=float).reshape(-1, 2)
@@ -192,11 +195,19 @@ class IncrementalGP:
 
     @property
     def mean(self) -> np.ndarray:
-        return self.prior_mean + self._mean_delta
+        """Posterior mean at every point (read-only; computed once per sample)."""
+        if self._mean is None:
+            self._mean = self.prior_mean + self._mean_delta
+            self._mean.flags.writeable = False
+        return self._mean
 
     @property
     def std(self) -> np.ndarray:
-        return np.sqrt(np.clip(self._var, 0.0, None))
+        """Posterior standard deviation at every point (read-only; computed once per sample)."""
+        if self._std is None:
+            self._std = np.sqrt(np.clip(self._var, 0.0, None))
+            self._std.flags.writeable = False
+        return self._std
 
     def fit_hyperparameters(self, seed: int = 0) -> KernelConfig:
         """Maximise the marginal likelihood over length scale, variance and noise; rebuild."""

@@ -145,3 +145,18 @@ def test_a_gp_prior_too_big_to_draw_is_refused_in_one_sentence(monkeypatch):
     with pytest.raises(GuadalError, match=r"^a gp_prior .* 300 x 300 grid .*; use a") as err:
         GPPriorField(GPPriorField.Config()).generate(square_lake(300), np.random.default_rng(0))
     assert str(err.value).count(". ") == 0
+
+
+def test_model_updates_run_with_the_configured_blas_threads_and_restore_them():
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from guadal_cli.envs.gp import BlasThreads
+
+    def counts():
+        return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert counts() and set(counts()) == {2}
+        with BlasThreads(1):
+            assert set(counts()) == {1}
+        assert set(counts()) == {2}

@@ -60,3 +60,38 @@ def test_hyperparameter_fit_moves_towards_the_true_length_scale(points):
     assert 12.0 < fitted.length_scale < 50.0
     assert after < before
     assert gp.n_ == 120
+
+
+def _refit(points, kernel, idx, y):
+    ref = GaussianProcessRegressor(kernel=sklearn_kernel(kernel), alpha=kernel.noise, optimizer=None)
+    return ref.fit(points[idx], y).predict(points, return_std=True)
+
+
+def test_samples_on_prediction_points_equal_a_full_refit(points):
+    """The runner's path: samples at graph nodes (repeats included), a hop's samples at a time."""
+    kernel = KernelConfig(type="matern", nu=1.5, length_scale=15, variance=2.0, noise=1e-3)
+    rng = np.random.default_rng(2)
+    idx = rng.integers(0, len(points), 84)
+    idx[1] = idx[0]
+    y = np.cos(points[idx, 1] / 15) + rng.normal(0, 0.05, len(idx))
+    gp = IncrementalGP(kernel, points)
+    for start in range(0, len(idx), 3):
+        part = idx[start : start + 3]
+        gp.add_many(points[part], y[start : start + 3], points=part.tolist())
+    mean, std = _refit(points, kernel, idx, y)
+    assert gp.n_ == len(idx)
+    assert np.abs(gp.mean - mean).max() < 1e-10
+    assert np.abs(gp.std - std).max() < 1e-10
+    assert np.array_equal(gp.X_, points[idx]) and np.array_equal(gp.y_, y)
+
+
+def test_posterior_arrays_are_read_only_snapshots(points):
+    gp = IncrementalGP(KernelConfig(length_scale=15), points)
+    gp.add(points[3], 1.0, 3)
+    before_mean, before_std = gp.mean, gp.std
+    assert gp.mean is before_mean  # not recomputed between samples
+    with pytest.raises(ValueError):
+        before_std[0] = 0.0
+    gp.add(points[40], 2.0)  # off the points' index: the other path
+    assert gp.mean is not before_mean and gp.std[40] < before_std[40]
+    assert before_mean[3] == pytest.approx(gp.mean[3], abs=0.5)  # the old snapshot kept its values
