@@ -9,10 +9,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import yaml
-
 from ..errors import GuadalError
-from ..records import MEASUREMENT_COLUMNS, TARGET_COLUMNS, TRAJECTORY_COLUMNS, VEHICLE_COLUMNS, _CsvStream
+from ..records import (
+    MEASUREMENT_COLUMNS,
+    TARGET_COLUMNS,
+    TRAJECTORY_COLUMNS,
+    VEHICLE_COLUMNS,
+    _CsvStream,
+    mission_yaml,
+)
 from . import queries
 from .store import FIELD_KEYS, from_json_safe, parse_cell
 
@@ -85,7 +90,7 @@ def export_run(engine, ref, destination: Path, fmt: str = "csv") -> Path:
     tables = run_tables(engine, run)
     (destination / "manifest.json").write_text(json.dumps(from_json_safe(run["manifest"]), indent=2) + "\n")
     mission = from_json_safe(run["mission"])
-    (destination / "mission.resolved.yaml").write_text(yaml.safe_dump(mission, sort_keys=False))
+    (destination / "mission.resolved.yaml").write_text(mission_yaml(mission))
     if fmt == "csv":
         for name, (columns, rows) in tables.items():
             stream = _CsvStream(destination / f"{name}.csv", columns)
