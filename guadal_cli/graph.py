@@ -11,6 +11,7 @@ per node or per edge. ``to_networkx()`` builds a networkx copy on demand, for us
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from functools import lru_cache
 
@@ -93,6 +94,17 @@ class NavGraph:
 
     def neighbors(self, node: int) -> tuple[int, ...]:
         return self._adjacent(node)[0]
+
+    def neighbours_within(self, node: int, budget_m: float) -> list[int]:
+        """Neighbours one edge of at most ``budget_m`` metres away (1e-9 m of rounding allowed)."""
+        nodes, lengths = self._adjacent(node)
+        limit = budget_m + 1e-9
+        return [n for n, length in zip(nodes, lengths) if length <= limit]
+
+    def shortest_edge(self, node: int) -> float:
+        """Metres to the nearest neighbour (inf for a node without one): the least a hop costs."""
+        lengths = self._adjacent(node)[1]
+        return min(lengths) if lengths else math.inf
 
     def edge_length(self, a: int, b: int) -> float:
         """Metres between two neighbouring nodes (KeyError if they are not neighbours)."""

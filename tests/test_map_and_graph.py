@@ -33,6 +33,30 @@ def test_eight_connected_with_metric_lengths():
         g.edge_length(g.node_at(0, 0), g.node_at(2, 2))  # not neighbours
 
 
+def test_hops_within_a_budget_and_the_cheapest_hop():
+    g = NavGraph(
+        Map(
+            mask=np.ones((3, 3), bool),
+            cell_size_m=5.0,
+            reference={"row": 1, "col": 1, "lat": 37.0, "lon": -6.0},
+        )
+    )
+    centre, corner = g.node_at(1, 1), g.node_at(0, 0)
+    straight = [n for n in g.neighbors(centre) if g.edge_length(centre, n) < 6.0]
+    assert g.neighbours_within(centre, 7.0) == straight and len(straight) == 4  # diagonals cost 7.07 m
+    assert g.neighbours_within(centre, 5.0 * math.sqrt(2)) == list(g.neighbors(centre))
+    assert g.neighbours_within(centre, 4.99) == []
+    assert g.shortest_edge(centre) == pytest.approx(5.0) and g.shortest_edge(corner) == pytest.approx(5.0)
+    island = NavGraph(  # one cell of water
+        Map(
+            mask=np.ones((1, 1), bool),
+            cell_size_m=5.0,
+            reference={"row": 0, "col": 0, "lat": 37.0, "lon": -6.0},
+        )
+    )
+    assert island.shortest_edge(0) == math.inf and island.neighbours_within(0, 100.0) == []
+
+
 def test_to_networkx_is_the_same_graph_with_its_attributes():
     g = NavGraph(l_lake())
     g.fill_graph_attribute("depth", np.arange(g.n_nodes, dtype=float))

@@ -96,10 +96,7 @@ class Fleet(ABC):
 
     def cannot_move(self, node: int, distance: float) -> bool:
         """True when no neighbour of ``node`` lies within the budget left after ``distance`` metres."""
-        graph = self.graph
-        nbrs = graph.neighbors(node)
-        remaining = self.max_distance - distance
-        return not nbrs or min(graph.edge_length(node, n) for n in nbrs) > remaining + 1e-9
+        return self.graph.shortest_edge(node) > self.max_distance - distance + 1e-9
 
     def stuck(self) -> dict[int, bool]:
         """Per vehicle: True when it cannot move (see :meth:`cannot_move`)."""

@@ -58,16 +58,10 @@ def pick(dist: np.ndarray, budget: float, allowed: np.ndarray, *keys: np.ndarray
 
 def hop_towards(observation: Observation, vehicle: int, target: int, claimed: set[int]) -> int | None:
     """Sequential mode: the free neighbour from which ``target`` is nearest over water."""
-    graph = observation.graph
-    here = observation.positions[vehicle]
-    options = [
-        n
-        for n in free_neighbours(observation, vehicle, claimed)
-        if graph.edge_length(here, n) <= observation.remaining[vehicle] + 1e-9
-    ]
+    options = free_neighbours(observation, vehicle, claimed, budget=True)
     if not options:
         return None
-    to_target = graph.distances_from(target)
+    to_target = observation.graph.distances_from(target)
     return min(options, key=lambda n: (to_target[n], n))
 
 

@@ -72,12 +72,22 @@ def best_node(candidates, scores, decimals: int = 9) -> int:
     to the first candidate. Posteriors computed in different but equivalent ways differ by
     1e-12 or so; without this, such noise would decide between equally good nodes and two
     equivalent runs would part ways."""
-    rounded = np.round(np.asarray(scores, dtype=float), decimals)
-    return int(np.asarray(candidates)[int(np.argmax(rounded))])
+    rounded = np.asarray(scores, dtype=float).round(decimals)
+    best = int(rounded.argmax())
+    return (
+        int(candidates[best]) if isinstance(candidates, (list, tuple)) else int(np.asarray(candidates)[best])
+    )
 
 
-def free_neighbours(observation: Observation, vehicle: int, claimed: set[int]) -> list[int]:
-    """Neighbours of a vehicle's node that no other vehicle holds or has claimed this step."""
+def free_neighbours(
+    observation: Observation, vehicle: int, claimed: set[int], budget: bool = False
+) -> list[int]:
+    """Neighbours of a vehicle's node that no other vehicle holds or has claimed this step;
+    with ``budget``, only those one edge within the vehicle's remaining distance."""
     node = observation.positions[vehicle]
     blocked = claimed | {n for v, n in observation.positions.items() if v != vehicle}
-    return [n for n in observation.graph.neighbors(node) if n not in blocked]
+    graph = observation.graph
+    options = (
+        graph.neighbours_within(node, observation.remaining[vehicle]) if budget else graph.neighbors(node)
+    )
+    return [n for n in options if n not in blocked]

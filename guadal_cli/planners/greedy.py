@@ -17,18 +17,12 @@ class GreedyStd(Planner):
 
     def next_targets(self, observation: Observation) -> dict[int, int]:
         std = observation.fields["std"]
-        graph = observation.graph
         claimed: set[int] = set()
         targets = {}
         for v in sorted(observation.positions):
             if observation.done.get(v):
                 continue
-            here = observation.positions[v]
-            options = [
-                n
-                for n in free_neighbours(observation, v, claimed)
-                if graph.edge_length(here, n) <= observation.remaining[v] + 1e-9
-            ]
+            options = free_neighbours(observation, v, claimed, budget=True)
             if not options:
                 continue
             best = best_node(options, std[options])

@@ -24,11 +24,7 @@ class RandomPlanner(Planner):
                 continue
             here = observation.positions[v]
             if self.mode_ == SEQUENTIAL:
-                options = [
-                    n
-                    for n in free_neighbours(observation, v, claimed - {here})
-                    if graph.edge_length(here, n) <= observation.remaining[v] + 1e-9
-                ]
+                options = free_neighbours(observation, v, claimed - {here}, budget=True)
             else:
                 dist = graph.distances_from(here)
                 ok = (dist <= observation.remaining[v] + 1e-9) & (dist > 0)
