@@ -144,13 +144,14 @@ class Episode:
                 self.visits.copy(),
             )
         fields, task, visits = self._fields
+        lost = fleet.lost  # out of the mission (a boat that did not answer when a run resumed, ...)
         return Observation(
             step=self.step_count,
             time_s=fleet.mission_time,
             graph=self.graph,
             positions=dict(fleet.positions),
             remaining=fleet.remaining(),
-            done=dict(self.done),
+            done={v: d or v in lost for v, d in self.done.items()},
             visits=visits,
             fields=fields,
             task=task,
@@ -205,7 +206,8 @@ class Episode:
         fleet = self.fleet
         positions = fleet.positions
         clean = self._check_targets(targets, positions, info["invalid"])
-        targets = {v: t for v, t in clean.items() if not self.done[v] and t != positions[v]}
+        lost = fleet.lost
+        targets = {v: t for v, t in clean.items() if not self.done[v] and v not in lost and t != positions[v]}
         info["targets"] = targets
         if targets and self.on_decision is not None:
             self.on_decision(self, fleet, targets)

@@ -172,14 +172,9 @@ class MissionRunner:
         self.recorder.write_vehicles(self.step, self.status.rows(self.step, fleet))
 
     def _record_targets(self, ep: Episode, fleet: Fleet, targets: dict[int, int]) -> None:
-        """One decision: where each vehicle is sent, labelled with the step of its first hop (a lost
-        vehicle is sent nowhere, whatever the planner said for it)."""
-        g, step, lost = self.graph, self.step + 1, fleet.lost
-        rows = [
-            (step, v, t, g.lat[t], g.lon[t], fleet.mission_time)
-            for v, t in sorted(targets.items())
-            if v not in lost
-        ]
+        """One decision: where each vehicle is sent, labelled with the step of its first hop."""
+        g, step = self.graph, self.step + 1
+        rows = [(step, v, t, g.lat[t], g.lon[t], fleet.mission_time) for v, t in sorted(targets.items())]
         self.recorder.write_targets(step, rows)
 
     # --- the loop ----------------------------------------------------------------------------
