@@ -18,7 +18,9 @@ within seconds; they use the real Episode, fleet and model code, not stand-ins.
 
 from __future__ import annotations
 
+import atexit
 import math
+import shutil
 import tempfile
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -123,6 +125,7 @@ def check_graph() -> NavGraph:
         mask = np.ones((9, 9), dtype=bool)
         mask[3:6, 3:6] = False
         folder = Path(tempfile.mkdtemp(prefix="guadal-check-"))
+        atexit.register(shutil.rmtree, folder, True)
         Map(
             mask=mask,
             cell_size_m=10.0,

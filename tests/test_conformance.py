@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,13 +29,6 @@ from guadal_cli.testing import (
 )
 from guadal_cli.vehicle.sensors import SerialSensor
 
-# files the file ground truth and the synthetic and replay sensors read, on the checks' pond
-DATA = Path(tempfile.mkdtemp(prefix="guadal-conformance-"))
-_graph = check_graph()
-np.savetxt(DATA / "truth.csv", _graph.to_grid(np.arange(_graph.n_nodes) / 10.0, fill=0.0), delimiter=",")
-(DATA / "survey.csv").write_text(
-    "lat,lon,value\n" + "".join(f"{_graph.lat[n]},{_graph.lon[n]},{n}\n" for n in range(0, _graph.n_nodes, 4))
-)
 CONFIGS = {
     ("algorithm", "policy"): {"model": "support.rl:std_ahead"},  # a hand-written sequential policy
     ("backend", "sitl"): {"level": "sitl", "launch": True, "speedup": 200},
@@ -66,9 +57,19 @@ def test_every_built_in_plugin_is_checked():
     assert ours - {cls for cls, _ in BUILT_IN} == {RealBackend, SerialSensor}
 
 
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """Files the file ground truth and the synthetic and replay sensors read, on the checks' pond."""
+    folder, graph = tmp_path_factory.mktemp("conformance"), check_graph()
+    np.savetxt(folder / "truth.csv", graph.to_grid(np.arange(graph.n_nodes) / 10.0, fill=0.0), delimiter=",")
+    samples = "".join(f"{graph.lat[n]},{graph.lon[n]},{n}\n" for n in range(0, graph.n_nodes, 4))
+    (folder / "survey.csv").write_text("lat,lon,value\n" + samples)
+    return folder
+
+
 @parametrize_with_checks([(cls, config) for cls, config in BUILT_IN])
-def test_built_in_plugins_keep_their_contracts(plugin, check):
-    plugin.options["base_dir"] = DATA
+def test_built_in_plugins_keep_their_contracts(plugin, check, data):
+    plugin.options["base_dir"] = data
     check(plugin)
 
 
