@@ -64,8 +64,9 @@ class Episode:
     the episode closes only a fleet it built (:meth:`close`). ``on_hop(ep, fleet, measurements)``
     runs after every hop (one graph edge, one step), ``before_hop(ep, fleet)`` before each, where
     :meth:`hold` may keep a vehicle in place, and ``on_decision(ep, fleet, targets)`` once per
-    decision that sends a vehicle somewhere, with the targets it will follow. ``invalid_targets`` is ``"raise"`` (a bad target
-    is a :class:`GuadalError`) or ``"stay"`` (that vehicle stays; the reason is in ``info``).
+    decision that sends a vehicle somewhere, with the targets it will follow. ``invalid_targets``
+    is ``"raise"`` (a bad target is a :class:`GuadalError`) or ``"stay"`` (that vehicle stays;
+    the reason is in ``info``).
     """
 
     def __init__(
