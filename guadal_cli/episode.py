@@ -290,12 +290,16 @@ class Episode:
     # --- the rules -------------------------------------------------------------------------------
     def _check_targets(self, targets, positions: dict[int, int], invalid: dict) -> dict[int, int]:
         """The targets as ``{int: int}``; a bad one raises, or with ``invalid_targets="stay"``
-        is left out with its reason in ``invalid``."""
+        is left out with its reason in ``invalid`` (under None when ``targets`` is no mapping)."""
         if not isinstance(targets, Mapping):
-            raise GuadalError(
+            problem = (
                 f"algorithm '{self.prep.mission.algorithm.type}' returned {type(targets).__name__}; "
                 "targets are a mapping {vehicle: node}."
             )
+            if self.invalid_targets == "raise":
+                raise GuadalError(problem)
+            invalid[None] = problem  # every vehicle stays
+            return {}
         clean = {}
         for v, node in targets.items():
             problem = self._target_problem(v, node, positions)

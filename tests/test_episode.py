@@ -96,6 +96,16 @@ def test_invalid_targets_raise_by_default_and_leave_the_vehicle_in_place_when_as
     assert "where targets must be neighbours" in info["invalid"][0]
     assert "vehicles are 0..1" in info["invalid"][5]
     assert info["moved"] == [1] and info["hops"] == 1 and not (terminated or truncated)
+    obs, measurements, *_, info = ep.step([3, 4])  # not even a mapping: nobody moves, nothing raised
+    assert (
+        obs.positions == {0: 0, 1: 7}
+        and not measurements
+        and "targets are a mapping" in info["invalid"][None]
+    )
+    strict = episode(pond, tmp_path)
+    strict.reset()
+    with pytest.raises(GuadalError, match="returned list; targets are a mapping"):
+        strict.step([3, 4])
 
 
 def test_two_boats_wanting_one_node_the_lower_id_goes_first(pond, tmp_path):
