@@ -466,10 +466,13 @@ def test_pseudo_terminal_serial_endpoint(fleet):
     conn = connect(vehicle["serial"], baud=115200)
     hb = wait_for(conn, "HEARTBEAT")
     assert hb.get_srcSystem() == 2 and hb.type == 11
+    # parameters round-trip over the serial link; a value no other test sets, since the boat's
+    # earlier PARAM_VALUE broadcasts may still wait unread in the terminal's buffer
+    conn.mav.param_set_send(2, 1, b"WP_RADIUS", 2.25, 9)
+    wait_for(conn, "PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS" and m.param_value == 2.25)
+    conn.mav.param_set_send(2, 1, b"WP_RADIUS", 2.0, 9)
     conn.mav.param_request_read_send(2, 1, b"WP_RADIUS", -1)
-    assert wait_for(conn, "PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS").param_value == pytest.approx(
-        2.0
-    )
+    wait_for(conn, "PARAM_VALUE", lambda m: m.param_id == "WP_RADIUS" and m.param_value == 2.0)
     # TIMESYNC answers with the vehicle's (simulated) clock
     conn.mav.timesync_send(0, 123456789)
     reply = wait_for(conn, "TIMESYNC", lambda m: m.ts1 == 123456789)

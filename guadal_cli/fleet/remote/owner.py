@@ -421,8 +421,9 @@ class FleetOwner:
         self._autopilot_state(v, data)
         if v.goto is not None and v.goto.open and v.goto.claimed is not None:
             self._confirm(v, v.goto)
-        # the track keeps one fix per 1/track_rate seconds of the vehicle's clock, whatever the speed-up
-        if v.t0 is not None and v.track_sampler.take(t):
+        # the track keeps one fix per 1/track_rate seconds of the vehicle's clock, whatever the speed-up;
+        # a fix taken before the mission's clock started (it can arrive after the start ack) is not in it
+        if v.t0 is not None and t >= v.t0 and v.track_sampler.take(t):
             v.track.append({"vehicle": v.id, "lat": lat, "lon": lon, "time_s": t - v.t0})
 
     @staticmethod
