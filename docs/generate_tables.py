@@ -83,6 +83,27 @@ TABLES = (
             Column("observed", "observed_fraction", 2),
         ),
     ),
+    Table(
+        key="rl",
+        page="docs/rl.md",
+        mission="missions/lake_policy.yaml",
+        title="paper lake, 3 boats (`lake_policy.yaml`)",
+        seeds=(1, 2, 3),
+        rows=(
+            (
+                "`policy` (`examples/rl/lake_policy.onnx`)",
+                {"type": "policy", "model": str(ROOT / "examples" / "rl" / "lake_policy.onnx")},
+            ),
+            ("`greedy`", {"type": "greedy"}),
+            ("`random`", {"type": "random", "mode": "sequential"}),
+        ),
+        columns=(
+            Column("final mean std", "mean_std", 4),
+            Column("final max std", "max_std", 3),
+            Column("final RMSE", "rmse", 4),
+            Column("coverage", "coverage", 2),
+        ),
+    ),
 )
 
 
@@ -95,7 +116,7 @@ def final_metrics(mission_path: Path, algorithm: dict, seed: int, workdir: Path)
     mission["algorithm"] = dict(algorithm)
     mission["seed"] = seed
     mission["map"] = str((mission_path.parent / mission["map"]).resolve())
-    name = f"{mission['name']}-{'-'.join(str(v) for v in algorithm.values())}-{seed}"
+    name = f"{mission['name']}-{'-'.join(Path(str(v)).name for v in algorithm.values())}-{seed}"
     path = workdir / f"{name}.yaml"
     path.write_text(yaml.safe_dump(mission, sort_keys=False))
     return MissionRunner(prepare(path), output=workdir / name).run().final_metrics

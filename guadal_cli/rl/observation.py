@@ -101,14 +101,17 @@ class ObservationBuilder:
         self.water[self.flat] = 1.0
         self.n_actions = len(OFFSETS) if mode == SEQUENTIAL else graph.n_nodes
         # sequential: the node each action leads to (-1: land or off the grid) and the hop's length
-        self.action_nodes = np.full((graph.n_nodes, len(OFFSETS)), -1, dtype=np.int64)
-        self.action_lengths = np.zeros((graph.n_nodes, len(OFFSETS)))
-        for a, (dr, dc) in enumerate(OFFSETS):
-            for n in range(graph.n_nodes):
-                m = graph.node_at(int(graph.rows[n]) + dr, int(graph.cols[n]) + dc)
-                if m is not None:
-                    self.action_nodes[n, a] = m
-                    self.action_lengths[n, a] = 0.0 if m == n else graph.edge_length(n, m)
+        index = np.full((self.height + 2, self.width + 2), -1, dtype=np.int64)  # a ring of land
+        index[graph.rows + 1, graph.cols + 1] = np.arange(graph.n_nodes)
+        self.action_nodes = np.stack(
+            [index[graph.rows + 1 + dr, graph.cols + 1 + dc] for dr, dc in OFFSETS], axis=1
+        )
+        to = np.maximum(self.action_nodes, 0)
+        self.action_lengths = np.where(
+            self.action_nodes >= 0,
+            np.hypot(graph.x[to] - graph.x[:, None], graph.y[to] - graph.y[:, None]),
+            0.0,
+        )
 
     # --- what the policy sees ------------------------------------------------------------
     @property
@@ -182,12 +185,13 @@ class ObservationBuilder:
         return masks
 
     def targets(
-        self, observation: Observation, actions: Mapping[int, int]
+        self, observation: Observation, actions: Mapping[int, int], masks: np.ndarray | None = None
     ) -> tuple[dict[int, int], dict[int, str]]:
         """``{vehicle: node}`` for the given actions, and the vehicles whose action was invalid
-        (they stay where they are) with the sentence saying why."""
+        (they stay where they are) with the sentence saying why. ``masks``: the
+        :meth:`action_masks` of these vehicles, where the caller has them already."""
         targets, invalid = {}, {}
-        masks = self.action_masks(observation, list(actions))
+        masks = self.action_masks(observation, list(actions)) if masks is None else masks
         for (v, action), mask in zip(actions.items(), masks):
             here = observation.positions[v]
             action = int(action)
