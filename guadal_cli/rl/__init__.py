@@ -6,10 +6,22 @@
 - :mod:`.env`: :class:`MissionParallelEnv` (PettingZoo) and :class:`MissionEnv` (Gymnasium,
   registered as ``guadal/Mission-v0``), both driving :class:`guadal_cli.episode.Episode`.
 
-The environments are imported on first use, so the planner works without Gymnasium installed.
+The environments are imported on first use, so the planner works without Gymnasium installed;
+where Gymnasium is installed, importing this package registers ``guadal/Mission-v0`` (its entry
+point is a string: the environment module loads only when ``gymnasium.make`` builds one).
 """
 
 from __future__ import annotations
+
+#: the Gymnasium id of :class:`MissionEnv`
+GYM_ID = "guadal/Mission-v0"
+
+try:
+    import gymnasium as _gymnasium
+except ImportError:  # deploying a policy needs no Gymnasium
+    _gymnasium = None
+if _gymnasium is not None and GYM_ID not in _gymnasium.registry:
+    _gymnasium.register(GYM_ID, entry_point="guadal_cli.rl.env:MissionEnv")
 
 _LAZY = {"MissionParallelEnv": ".env", "MissionEnv": ".env", "RewardConfig": ".rewards"}
 

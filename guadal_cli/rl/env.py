@@ -316,7 +316,3 @@ class MissionEnv(gymnasium.Env):
 
     def close(self):
         self.parallel.close()
-
-
-if "guadal/Mission-v0" not in gymnasium.registry:
-    gymnasium.register("guadal/Mission-v0", entry_point="guadal_cli.rl.env:MissionEnv")

@@ -8,12 +8,15 @@ import gymnasium
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from pettingzoo.test import parallel_api_test
+from pettingzoo.test import parallel_api_test, parallel_seed_test
 from support import ROOT, base_mission
+from support import rl as rl_support
 
 from guadal_cli.errors import GuadalError
+from guadal_cli.mission import prepare_dict
 from guadal_cli.rl import MissionParallelEnv
 from guadal_cli.rl.observation import COMPASS
+from guadal_cli.runner import MissionRunner
 
 
 def small(**overrides):
@@ -77,6 +80,10 @@ def test_same_seed_same_observations_and_rewards():
     assert not np.array_equal(a_obs[1][:, 2], c_obs[1][:, 2]) or a_rew != c_rew
 
 
+def test_pettingzoo_s_seed_test_passes():
+    parallel_seed_test(lambda: MissionParallelEnv(small()), num_cycles=50)
+
+
 def test_the_default_gp_reward_is_the_fall_of_the_mean_std():
     env = MissionParallelEnv(small())
     env.reset(seed=1)
@@ -131,3 +138,30 @@ def test_a_few_hundred_steps_of_a_learning_loop():
             steps += len(actions)
         w += 0.1 * total * np.mean(grads, axis=0)
     assert np.isfinite(w).all() and np.abs(w).sum() > 0
+
+
+def test_a_policy_sees_the_same_inputs_in_training_and_in_guadal_run(tmp_path):
+    """The env and the policy planner build observations in one module: played by the same
+    policy, they show it identical arrays at every decision and end on the same nodes."""
+    mission = small(algorithm={"type": "policy", "model": "support.rl:recording_std_ahead"})
+    mission["output"] = {"directory": str(tmp_path), "database": "none"}
+    prep = prepare_dict(mission, tmp_path)
+    rl_support.SEEN.clear()  # validation called it once on a blank batch
+    MissionRunner(prep, output=tmp_path / "run").run()
+    deployed = list(rl_support.SEEN)
+    env = MissionParallelEnv(mission)
+    obs, infos = env.reset(seed=mission["seed"])
+    trained = []
+    while env.agents:
+        batch = np.stack([obs[a] for a in env.agents])
+        trained.append(batch)
+        scores = rl_support.std_ahead(batch)
+        actions = {
+            a: int(np.argmax(np.where(infos[a]["action_mask"] > 0, s, -np.inf)))
+            for a, s in zip(env.agents, scores)
+        }
+        obs, _, _, _, infos = env.step(actions)
+    assert len(trained) > 5
+    assert len(deployed) == len(trained)
+    for shown_in_training, shown_deployed in zip(trained, deployed):
+        assert np.array_equal(shown_in_training, shown_deployed)
