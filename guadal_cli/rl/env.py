@@ -158,8 +158,7 @@ class MissionParallelEnv(ParallelEnv):
     def step(self, actions: dict):
         obs = self._observation
         live = [a for a in self.agents if a in actions]
-        chosen = {self.vehicle(a): actions[a] for a in live}
-        chosen = {v: int(np.asarray(a).reshape(-1)[0]) if np.size(a) == 1 else -1 for v, a in chosen.items()}
+        chosen = {self.vehicle(a): _as_action(actions[a]) for a in live}
         masks = np.stack([self._masks[v] for v in chosen]) if chosen else None
         targets, invalid = self.builder.targets(obs, chosen, masks)
         obs, _, terminated, truncated, info = self.episode.step(targets)
@@ -225,7 +224,19 @@ class MissionParallelEnv(ParallelEnv):
         return render_rgb(self.builder, self._observation)
 
     def close(self) -> None:
-        self.episode.close() if hasattr(self.episode, "close") else None
+        self.episode.close()
+
+
+def _as_action(value) -> int:
+    """An action as an int; anything that is not one whole number reads -1 (an invalid action)."""
+    try:
+        array = np.asarray(value)
+        if array.size != 1 or array.dtype.kind not in "biuf":
+            return -1
+        number = array.reshape(-1)[0]
+        return int(number) if float(number).is_integer() else -1
+    except (TypeError, ValueError, OverflowError):
+        return -1
 
 
 def render_rgb(builder: ObservationBuilder, observation, cell: int = 8) -> np.ndarray:

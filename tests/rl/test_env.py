@@ -100,7 +100,7 @@ def test_invalid_actions_never_raise_the_boat_stays_and_pays():
     _, infos = env.reset(seed=2)
     assert infos["boat_0"]["action_mask"][COMPASS.index("N")] == 0  # north of boat 0 is land
     before = dict(env.episode.fleet.positions)
-    bad = {"boat_0": COMPASS.index("N"), "boat_1": 99, "boat_2": -1}  # land, and no such actions
+    bad = {"boat_0": COMPASS.index("N"), "boat_1": 99, "boat_2": "east"}  # land, and no such actions
     _, rewards, _, _, infos = env.step(bad)
     assert env.episode.fleet.positions == before  # nobody moved
     for a in bad:
