@@ -160,3 +160,11 @@ def test_a_target_mode_policy_sends_reachable_nodes(tmp_path, write_mission):
 
 def test_std_ahead_is_a_valid_policy_for_the_lake():
     assert std_ahead(np.zeros((2, *SHAPE), np.float32)).shape == (2, 9)
+
+
+def test_a_vector_layout_policy_reads_the_water_nodes(tmp_path, write_mission):
+    linear_onnx(tmp_path / "v.onnx", (6 * 351,), 9)  # six channels at the lake's 351 water nodes
+    result = MissionRunner(
+        prepare(mission_with(tmp_path, write_mission, "v.onnx")), output=tmp_path / "run"
+    ).run()
+    assert result.status == "complete" and result.steps > 3
