@@ -36,14 +36,18 @@ def test_a_target_mode_env_passes_pettingzoo_s_api_test():
     parallel_api_test(MissionParallelEnv(mission), num_cycles=50)
 
 
-@pytest.mark.parametrize("layout", ["image", "dict"])
-def test_the_gymnasium_env_passes_check_env(layout):
-    env = gymnasium.make("guadal/Mission-v0", mission=small(), layout=layout, render_mode="rgb_array")
+@pytest.mark.parametrize(
+    "layout, mode", [("image", "sequential"), ("dict", "sequential"), ("vector", "target")]
+)
+def test_the_gymnasium_env_passes_check_env(layout, mode):
+    mission = small(algorithm={"type": "random", "mode": mode})
+    env = gymnasium.make("guadal/Mission-v0", mission=mission, layout=layout, render_mode="rgb_array")
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a warning from the checker is a failure here
         check_env(env.unwrapped)
     assert isinstance(env.action_space, gymnasium.spaces.MultiDiscrete)
-    assert list(env.action_space.nvec) == [len(COMPASS)] * 3
+    n_actions = len(COMPASS) if mode == "sequential" else env.unwrapped.parallel.prep.graph.n_nodes
+    assert list(env.action_space.nvec) == [n_actions] * 3
 
 
 def test_the_gymnasium_env_is_made_from_a_mission_file():
