@@ -10,9 +10,9 @@ cell each action leads to; ``std_ahead`` below), twice per repeat:
 
 Both play the same episode (the trajectories are compared). Agent-steps are decisions times the
 vehicles acting in them. The env's time per step is split into the model update (the GP), the
+Episode's rules (its step less the model update: hops, conflicts, budgets, coverage), the
 observation building (images and action masks, guadal_cli.rl.observation), the policy, the
-metrics the reward is computed from, and the rest: the Episode's rules (hops, conflicts, budgets,
-coverage) and the environment's own bookkeeping.
+metrics the reward is computed from, and the rest: the environment's own translation.
 
 Times are CPU seconds of this process with one BLAS thread (threadpoolctl), the median of
 ``--repeat`` interleaved runs: on a shared machine wall time measures the neighbours.
@@ -92,6 +92,7 @@ def run_env(seed: int):
     env.builder.images = clock.wrap("observations", env.builder.images)
     env.builder.action_masks = clock.wrap("observations", env.builder.action_masks)
     gp.metrics = clock.wrap("metrics for the reward", gp.metrics)
+    env.episode.step = clock.wrap("episode step", env.episode.step)
     policy = clock.wrap("policy", std_ahead)
     t0 = time.process_time()
     obs, infos = env.reset(seed=seed)
@@ -146,10 +147,12 @@ def main() -> None:
         parts.append(spent)
     same = env_path == runner_path[: len(env_path)] and len(runner_path) == len(env_path)
     env_s, runner_s = statistics.median(env_times), statistics.median(runner_times)
-    split = {
-        k: statistics.median(p.get(k, 0.0) for p in parts) for k in ("model update", "observations", "policy")
-    }
-    split["rules, metrics, rewards"] = env_s - sum(split.values())
+    labels = ("model update", "episode step", "observations", "policy", "metrics for the reward")
+    split = {k: statistics.median(p.get(k, 0.0) for p in parts) for k in labels}
+    split["Episode's rules (hops, conflicts, budgets, coverage)"] = (
+        split.pop("episode step") - split["model update"]
+    )
+    split["the env's own translation (actions, rewards, dicts)"] = env_s - sum(split.values())
     print(
         f"Measured {dt.date.today().isoformat()} on {os.cpu_count()} cores, Python {platform.python_version()}, "
         f"BLAS threads {blas}, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} before, "
