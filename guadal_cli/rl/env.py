@@ -162,7 +162,8 @@ class MissionParallelEnv(ParallelEnv):
         masks = np.stack([self._masks[v] for v in chosen]) if chosen else None
         targets, invalid = self.builder.targets(obs, chosen, masks)
         obs, _, terminated, truncated, info = self.episode.step(targets)
-        invalid.update({int(v): why for v, why in info.get("invalid", {}).items()})
+        # the Episode's refusals (under None: the whole decision), though the env sends only valid ones
+        invalid.update({v: why for v, why in info.get("invalid", {}).items() if v is not None})
         self._observation = obs
         metrics = self.episode.environment.metrics()
         shared = self.reward_fn(self._metrics, metrics)
