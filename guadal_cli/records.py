@@ -78,13 +78,26 @@ def fmt(value) -> str:
 def _cell(value) -> str:
     """``fmt``, quoted as the csv module quotes (minimal, excel dialect): text holding a comma,
     a quote or a line break."""
-    text = format(value, ".10g") if isinstance(value, float) else fmt(value)
-    if isinstance(value, str) and any(c in text for c in _SPECIAL):
-        return '"' + text.replace('"', '""') + '"'
-    return text
+    if isinstance(value, float):
+        return format(value, ".10g")
+    if isinstance(value, str):
+        if "," in value or '"' in value or "\n" in value or "\r" in value:
+            return '"' + value.replace('"', '""') + '"'
+        return value
+    return fmt(value)
 
 
-_SPECIAL = (",", '"', "\r", "\n")
+def _line(row: Sequence) -> str:
+    """One CSV line; floats (numpy's included) and ints inline: they are most cells."""
+    return (
+        ",".join(
+            [
+                format(v, ".10g") if isinstance(v, float) else str(v) if type(v) is int else _cell(v)
+                for v in row
+            ]
+        )
+        + "\n"
+    )
 
 
 def mission_yaml(mission: dict) -> str:
@@ -131,7 +144,7 @@ class _CsvStream:
     """An append-only CSV that flushes every row batch (``append``: go on after existing rows).
 
     Rows are formatted here, not by the csv module: one string and one write per batch
-    (the mission appends a few short rows to three files at every hop, and per-row calls add
+    (the mission appends a few short rows to several files at every hop, and per-row calls add
     up). The text is what ``csv.writer`` writes, as a test checks.
     """
 
@@ -140,22 +153,13 @@ class _CsvStream:
         self.rows_written = 0
         self._fh = open(path, "a" if append else "w", newline="", encoding="utf-8")
         if not append:
-            self._fh.write(",".join(map(_cell, self.columns)) + "\n")
+            self._fh.write(_line(self.columns))
         self._fh.flush()
 
     def write(self, rows: Iterable[Sequence]) -> None:
         rows = rows if isinstance(rows, list) else list(rows)
         if rows:
-            # floats (numpy's included) inline: they are most cells, and a call each adds up
-            self._fh.write(
-                "".join(
-                    [
-                        ",".join([format(v, ".10g") if isinstance(v, float) else _cell(v) for v in row])
-                        + "\n"
-                        for row in rows
-                    ]
-                )
-            )
+            self._fh.write("".join(map(_line, rows)))
             self.rows_written += len(rows)
         self._fh.flush()
 

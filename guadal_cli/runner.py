@@ -89,6 +89,7 @@ class MissionRunner:
         self.stop_reason = ""
         self._share_fields_at = 0.0
         self.status = StatusSampler()
+        self._distance_columns = [f"distance_v{v}" for v in range(self.n)]
 
     @property
     def step(self) -> int:
@@ -130,7 +131,7 @@ class MissionRunner:
         """One step into the run directory (and the database): the episode has counted it."""
         dist = fleet.distances
         row = {"step": self.step, "time_s": fleet.mission_time}
-        row.update({f"distance_v{v}": dist[v] for v in range(self.n)})
+        row.update(zip(self._distance_columns, [dist[v] for v in range(self.n)]))
         row.update(total_distance=sum(dist.values()), samples=ep.samples, coverage=ep.coverage)
         row.update(self.environment.metrics())
         g = self.graph

@@ -187,6 +187,12 @@ def blas_controller() -> ThreadpoolController:
     return ThreadpoolController()
 
 
+@functools.cache
+def blas_libraries() -> list:
+    """The BLAS libraries' controllers (each reads and sets its library's thread count)."""
+    return blas_controller().select(user_api="blas").lib_controllers
+
+
 class BlasThreads:
     """``threads`` BLAS threads inside the block, each library's own count restored after.
 
@@ -197,7 +203,7 @@ class BlasThreads:
 
     def __init__(self, threads: int):
         self.threads = threads
-        self._libraries = blas_controller().select(user_api="blas").lib_controllers
+        self._libraries = blas_libraries()
         self._restore: list = []
 
     def __enter__(self) -> BlasThreads:
