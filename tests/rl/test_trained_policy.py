@@ -4,13 +4,14 @@ plays through ``guadal run`` at sim and, unchanged, at sitl with the launched st
 from __future__ import annotations
 
 import csv
+import json
 import sys
 import uuid
 
 import numpy as np
 import onnxruntime as ort
 import yaml
-from support import ROOT
+from support import ROOT, base_mission
 from support.fleet import processes_marked
 
 from guadal_cli.mission import prepare
@@ -80,3 +81,18 @@ def test_the_trained_policy_plays_unchanged_at_sitl(tmp_path, monkeypatch):
     assert len(plan_rows(runs["sim"])) > 3 * 4
     assert plan_rows(runs["sitl"]) == plan_rows(runs["sim"])
     assert processes_marked(f"GUADAL_TEST_MARK={mark}") == [], "the launched stack left processes behind"
+
+
+def test_the_training_example_exports_a_policy_guadal_runs(tmp_path, write_mission):
+    """examples/rl/train.py end to end on a short mission: train, export, play with guadal's planner."""
+    import train
+
+    mission = base_mission()
+    mission["fleet"]["max_distance"] = 40.0
+    path = write_mission(mission, "short.yaml")
+    out = tmp_path / "policy.onnx"
+    train.main(["--mission", str(path), "--out", str(out), "--generations", "2", "--population", "4"])
+    assert json.loads(out.with_suffix(".json").read_text())["curve"]
+    mission["algorithm"] = {"type": "policy", "model": "policy.onnx"}
+    result = MissionRunner(prepare(write_mission(mission, "deploy.yaml")), output=tmp_path / "run").run()
+    assert result.status == "complete"
