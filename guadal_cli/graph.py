@@ -120,24 +120,33 @@ class NavGraph:
         return tuple(self._indices[part].tolist()), tuple(self._lengths[part].tolist())
 
     # --- paths ---------------------------------------------------------------------------
-    def _tree_from(self, source: int) -> tuple[np.ndarray, np.ndarray]:
-        """Distances and predecessors from ``source`` (cached, read-only)."""
+    def _tree_from(self, source: int, limit: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
+        """Distances and predecessors from ``source`` (cached, read-only), exact up to ``limit``
+        metres and inf beyond it; a cached tree that reaches at least as far serves."""
         tree = self._trees.get(source)
-        if tree is not None:
+        if tree is not None and tree[2] >= limit:
             self._trees.move_to_end(source)
-            return tree
-        dist, pred = dijkstra(self.adjacency, directed=False, indices=source, return_predecessors=True)
+            return tree[0], tree[1]
+        dist, pred = dijkstra(
+            self.adjacency, directed=False, indices=source, return_predecessors=True, limit=limit
+        )
         pred = pred.astype(np.int32, copy=False)
         dist.setflags(write=False)
         pred.setflags(write=False)
-        self._trees[source] = (dist, pred)
+        self._trees[source] = (dist, pred, limit)
+        self._trees.move_to_end(source)
         while len(self._trees) > self._max_trees:
             self._trees.popitem(last=False)
         return dist, pred
 
-    def distances_from(self, source: int) -> np.ndarray:
-        """Water-path distance in metres from ``source`` to every node (inf if unreachable)."""
-        return self._tree_from(int(source))[0]
+    def distances_from(self, source: int, limit: float = math.inf) -> np.ndarray:
+        """Water-path distance in metres from ``source`` to every node (inf if unreachable).
+
+        With ``limit``, only nodes within that many metres are searched (the rest read inf): a
+        planner that looks no farther than a vehicle's budget pays for the budget's disc, not
+        the whole lake.
+        """
+        return self._tree_from(int(source), limit)[0]
 
     def distance(self, a: int, b: int) -> float:
         return float(self.distances_from(a)[b])
@@ -159,7 +168,12 @@ class NavGraph:
             adj.eliminate_zeros()  # csgraph treats stored zeros as free edges
             dist, pred = dijkstra(adj, directed=False, indices=a, return_predecessors=True)
         else:
-            dist, pred = self._tree_from(int(a))
+            tree = self._trees.get(a)  # a tree searched only within a budget serves if it reaches b
+            if tree is not None and np.isfinite(tree[0][b]):
+                self._trees.move_to_end(a)
+                dist, pred = tree[0], tree[1]
+            else:
+                dist, pred = self._tree_from(int(a))
         if not np.isfinite(dist[b]):
             return []
         path = [int(b)]

@@ -57,6 +57,20 @@ def test_hops_within_a_budget_and_the_cheapest_hop():
     assert island.shortest_edge(0) == math.inf and island.neighbours_within(0, 100.0) == []
 
 
+def test_distances_searched_within_a_limit_and_paths_beyond_it():
+    g = NavGraph(load_map("maps/urban_lake.json"))
+    full = g.distances_from(0).copy()
+    g._trees.clear()
+    near = g.distances_from(0, limit=40.0)
+    assert np.array_equal(near[full <= 40.0], full[full <= 40.0])
+    assert np.isinf(near[full > 40.0]).all() and (full > 40.0).any()
+    far = int(np.argmax(np.where(np.isfinite(full), full, -1)))
+    path = g.shortest_path(0, far)  # beyond the limited search: the whole tree is searched then
+    assert path[0] == 0 and path[-1] == far
+    assert sum(g.edge_length(a, b) for a, b in zip(path, path[1:])) == pytest.approx(full[far])
+    assert np.array_equal(g.distances_from(0, limit=40.0), full)  # the whole tree serves a limit
+
+
 def test_to_networkx_is_the_same_graph_with_its_attributes():
     g = NavGraph(l_lake())
     g.fill_graph_attribute("depth", np.arange(g.n_nodes, dtype=float))

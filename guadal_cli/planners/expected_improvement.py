@@ -58,12 +58,9 @@ class ExpectedImprovement(Planner):
         for v in sorted(observation.positions):
             if observation.done.get(v):
                 continue
-            dist = graph.distances_from(observation.positions[v])
-            ok = (
-                open_nodes
-                & (dist <= observation.remaining[v] + 1e-9)
-                & (dist > max(self.config.min_target_distance, 1e-9))
-            )
+            budget = observation.remaining[v] + 1e-9
+            dist = graph.distances_from(observation.positions[v], limit=max(budget, 0.0))
+            ok = open_nodes & (dist <= budget) & (dist > max(self.config.min_target_distance, 1e-9))
             if not ok.any():
                 continue
             score = np.where(ok, ei, -1.0)
