@@ -36,6 +36,11 @@ import yaml
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_name] = "1"  # before numpy loads: the baseline gets one BLAS thread, like each worker
+# The mission database is off on both sides (workers inherit this): its writer thread goes on after
+# a mission returns, so its CPU lands in whichever run is going, and it has its own benchmark
+# (bench_db.py). GUADAL_BENCH_DB=1 keeps it on.
+if os.environ.get("GUADAL_BENCH_DB") != "1":
+    os.environ["GUADAL_DB"] = "none"
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -128,7 +133,7 @@ def timed_cli_loop(path: Path, out: Path, n: int) -> float:
     start = time.perf_counter()
     for f in files:
         subprocess.run(
-            [sys.executable, "-m", "guadal_cli", "run", str(f), "--output", str(out / f.stem), "--quiet"],
+            [sys.executable, "-m", "guadal_cli", "run", str(f), "--run-dir", str(out / f.stem), "--quiet"],
             check=True,
         )
     return (time.perf_counter() - start) / n
@@ -180,6 +185,7 @@ def main() -> None:
         sweeps.mkdir()
         print(f"# {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
         print(f"# load average before: {os.getloadavg()[0]:.2f}")
+        print(f"# mission database: {os.environ.get('GUADAL_DB', 'on (SQLite beside the runs)')}")
 
         # warm-up: small runs so that caches and imports are paid before timing
         timed_sweep(write_sweep(sweeps, "1..1"), tmp / "warm", 2)

@@ -55,7 +55,10 @@ class LocalExecutor:
     """Worker processes on this machine (started fresh, not forked: safe beside threads)."""
 
     def __init__(self, workers: int):
-        self.slots = workers
+        self.workers = workers
+        # one task waiting in line per worker: a worker that finishes a mission takes the next at
+        # once, instead of waiting for the sweep to hear of it, record it and send another
+        self.slots = 2 * workers
         self._pool = self._new_pool()
         for _ in range(workers):  # processes start on demand: ask for all of them now
             self._pool.submit(_ready)
@@ -64,7 +67,7 @@ class LocalExecutor:
         import multiprocessing
 
         return ProcessPoolExecutor(
-            self.slots,
+            self.workers,
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_init_local_worker,
             initargs=(os.getpid(),),
