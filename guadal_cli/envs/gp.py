@@ -56,7 +56,9 @@ class GPConfig(BaseModel):
         default_factory=lambda: {"type": "shekel"},
         description="{type: shekel|gp_prior|file, ...}; null when only real sensors know the field.",
     )
-    noise_std: float = Field(default=0.0, ge=0, description="Std of synthetic measurement noise.")
+    noise_std: float = Field(
+        default=0.0, ge=0, le=1e6, description="Std of synthetic measurement noise (at most 1e6)."
+    )
     kernel: KernelConfig = KernelConfig()
     prior_mean: float = 0.0
     fit_every: int = Field(

@@ -37,9 +37,15 @@ class KernelConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     type: Literal["rbf", "matern"] = "matern"
-    length_scale: float = Field(default=20.0, gt=0, description="Correlation length, metres.")
-    variance: float = Field(default=1.0, gt=0, description="Signal variance.")
-    noise: float = Field(default=1e-3, ge=1e-8, description="Observation noise variance.")
+    # The upper bounds are far beyond any field a boat samples; past them the posterior's
+    # arithmetic (variance squared, distance over length) overflows to NaN instead of refusing.
+    length_scale: float = Field(
+        default=20.0, ge=1e-3, le=1e7, description="Correlation length, metres (1 mm to 10,000 km)."
+    )
+    variance: float = Field(default=1.0, gt=0, le=1e12, description="Signal variance (at most 1e12).")
+    noise: float = Field(
+        default=1e-3, ge=1e-8, le=1e12, description="Observation noise variance (1e-8 to 1e12)."
+    )
     nu: Literal[0.5, 1.5, 2.5] = Field(default=1.5, description="Matérn smoothness (matern only).")
 
 
