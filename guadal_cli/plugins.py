@@ -78,27 +78,27 @@ def _available(kind: str) -> dict[str, PluginInfo]:
     return found
 
 
-def _import_target(target: str, kind: str, shown_name: str):
+def import_object(target: str, owner: str, noun: str = "plugin", example: str = "package.module:Class"):
+    """The object ``module:attr`` names, for ``owner`` (how messages call it); one sentence on error.
+
+    Used for plugins named by their import path and for policies given as ``module:function``.
+    """
     module_name, _, attr = target.partition(":")
     if module_name.split(".")[0] in sys.stdlib_module_names:
         raise GuadalError(
-            f"the {kind} plugin '{shown_name}' names '{module_name}', a module of Python's standard "
-            "library, which holds no guadal plugin; name the plugin's own module, as 'package.module:Class'."
+            f"{owner} names '{module_name}', a module of Python's standard library, which holds no "
+            f"guadal {noun}; name the {noun}'s own module, as '{example}'."
         )
     try:
-        module = importlib.import_module(module_name)
+        obj = importlib.import_module(module_name)
     except ImportError as exc:
-        raise GuadalError(
-            f"the {kind} plugin '{shown_name}' could not be imported from module '{module_name}': {exc}."
-        ) from exc
-    obj = module
+        raise GuadalError(f"{owner} could not be imported from module '{module_name}': {exc}.") from exc
     for part in attr.split("."):
         try:
             obj = getattr(obj, part)
         except AttributeError as exc:
             raise GuadalError(
-                f"the {kind} plugin '{shown_name}' names '{attr}', which module "
-                f"'{module_name}' does not define."
+                f"{owner} names '{attr}', which module '{module_name}' does not define."
             ) from exc
     return obj
 
@@ -126,7 +126,7 @@ def load(kind: str, name: str) -> type:
     Unknown names get the list of known ones and the closest match.
     """
     if ":" in name:
-        return _checked(_import_target(name, kind, name), kind, name)
+        return _checked(import_object(name, f"the {kind} plugin '{name}'"), kind, name)
     known = available(kind)
     if name not in known:
         names = sorted(known)
@@ -136,7 +136,7 @@ def load(kind: str, name: str) -> type:
             f"unknown {kind} '{name}' (known: {', '.join(names) or 'none installed'}; "
             f"or give 'module:Class').{hint}"
         )
-    return _checked(_import_target(known[name].target, kind, name), kind, name)
+    return _checked(import_object(known[name].target, f"the {kind} plugin '{name}'"), kind, name)
 
 
 def describe(kind: str, name: str) -> dict:

@@ -11,10 +11,8 @@ the mission.
 
 from __future__ import annotations
 
-import importlib
 import json
 import os
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,6 +20,7 @@ import numpy as np
 
 from ..errors import GuadalError
 from ..maps.format import checked_path
+from ..plugins import import_object
 
 #: the metadata key an exported policy's training settings are stored under
 METADATA_KEY = "guadal"
@@ -67,20 +66,7 @@ def load_policy(source: str, layout: str = "image") -> Policy:
 
 
 def _import_callable(name: str):
-    module_name, _, attr = name.partition(":")
-    if module_name.split(".")[0] in sys.stdlib_module_names:
-        raise GuadalError(
-            f"'{name}' names a module of Python's standard library; name the policy's own module, "
-            "as 'package.module:function'."
-        )
-    try:
-        obj = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise GuadalError(f"cannot import module '{module_name}' for the policy '{name}': {exc}.") from exc
-    for part in attr.split("."):
-        obj = getattr(obj, part, None)
-        if obj is None:
-            raise GuadalError(f"module '{module_name}' defines no '{attr}' for the policy '{name}'.")
+    obj = import_object(name, f"the policy '{name}'", noun="policy", example="package.module:function")
     if not callable(obj):
         raise GuadalError(f"'{name}' is a {type(obj).__name__}, not a function taking observations.")
     return obj
