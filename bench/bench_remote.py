@@ -5,7 +5,8 @@
    for all the ``reached`` acks: that is the fixed price of one hop at the remote levels, with
    no sailing in it. Baseline, same run: a raw paho client publishes one QoS 1 message per boat
    to an echo client that republishes it, and waits for all the echoes, through a second
-   Mosquitto of the same build that admits anonymous clients (the stack's own broker does not).
+   Mosquitto of the same build (`start_broker` without secrets: anonymous, TCP_NODELAY like the
+   stack's), since the stack's own broker admits no anonymous client.
 2. Whole mission. ``missions/lake_greedy_sitl.yaml`` (3 boats, 925 m each) at speed-up 50 and
    200, wall time against the mission's own simulated duration (last ``time_s``); the sim twin
    ``missions/lake_greedy.yaml`` is timed too, for the planner's own share.
@@ -17,14 +18,12 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import csv
 import datetime as dt
 import os
 import platform
 import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import threading
@@ -37,6 +36,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from guadal_cli.channel.broker import start_broker  # noqa: E402
 from guadal_cli.fleet.remote import RemoteFleet, SitlConfig  # noqa: E402
 from guadal_cli.graph import NavGraph  # noqa: E402
 from guadal_cli.maps.format import load_map  # noqa: E402
@@ -96,34 +96,6 @@ def echo_round_trips(port: int, n: int, cycles: int) -> list[float]:
     return times
 
 
-@contextlib.contextmanager
-def anonymous_mosquitto():
-    """A plain Mosquitto on a free loopback port, for the echo baseline."""
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    with tempfile.TemporaryDirectory() as tmp:
-        conf = Path(tmp) / "mosquitto.conf"
-        conf.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\nset_tcp_nodelay true\n")
-        proc = subprocess.Popen(
-            ["mosquitto", "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-        )
-        try:
-            deadline = time.monotonic() + 10
-            while True:
-                try:
-                    socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
-                    break
-                except OSError:
-                    if time.monotonic() > deadline:
-                        raise
-                    time.sleep(0.05)
-            yield port
-        finally:
-            proc.terminate()
-            proc.wait(10)
-
-
 def goto_cycles(fleet: RemoteFleet, cycles: int) -> tuple[list[float], list[float]]:
     """Seconds until every boat acknowledged (``accepted``) and until every boat ``reached``."""
     accepted, reached = [], []
@@ -155,8 +127,11 @@ def decision_cycle(counts: list[int], cycles: int, speedup: float) -> list[dict]
         try:
             fleet.reset(start)
             accepted, cycle = goto_cycles(fleet, cycles)
-            with anonymous_mosquitto() as echo_port:
-                base = echo_round_trips(echo_port, n, cycles)
+            echo_broker = start_broker("mosquitto")  # no secrets: anonymous, loopback only
+            try:
+                base = echo_round_trips(echo_broker.port, n, cycles)
+            finally:
+                echo_broker.stop()
         finally:
             fleet.close()
             stack.down()
