@@ -10,15 +10,13 @@ from __future__ import annotations
 import json
 import shutil
 import signal
-import subprocess
 import sys
-import time
 
 import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from support import ROOT, base_mission, run_cli
+from support import ROOT, base_mission, run_cli, start_cli, wait_for_steps
 from support.fuzz import examples
 
 from guadal_cli.errors import GuadalError
@@ -109,27 +107,6 @@ def test_a_run_killed_at_any_step_resumes_byte_identical(planner, full_runs, tmp
     killed_then_resumed()
 
 
-def _start(mission, out):
-    return subprocess.Popen(
-        [sys.executable, "-m", "guadal_cli", "run", str(mission), "-o", str(out), "-q"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-
-
-def _wait_for_steps(proc, out, n: int) -> None:
-    metrics = out / "metrics.csv"
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        if metrics.exists() and metrics.read_text().count("\n") > n:
-            return
-        if proc.poll() is not None:
-            pytest.fail(f"mission ended early: {proc.stderr.read()}")
-        time.sleep(0.02)
-    pytest.fail("the mission wrote no steps")
-
-
 @pytest.mark.parametrize(
     "how", [signal.SIGKILL, signal.SIGTERM, signal.SIGINT], ids=["kill-9", "term", "int"]
 )
@@ -143,8 +120,8 @@ def test_a_real_process_stopped_mid_run_resumes_to_the_uninterrupted_result(how,
     )
     run_in_process(mission, tmp_path / "full")
     out = tmp_path / "stopped"
-    proc = _start(mission, out)
-    _wait_for_steps(proc, out, 10)
+    proc = start_cli("run", mission, "-o", out, "-q")
+    wait_for_steps(proc, out, 10, timeout=120)
     proc.send_signal(how)
     proc.communicate(timeout=60)
     manifest = json.loads((out / "manifest.json").read_text())

@@ -9,13 +9,10 @@ from __future__ import annotations
 
 import csv
 import json
-import os
-import subprocess
-import sys
 
 import pytest
 import yaml
-from support import LAKE, base_mission
+from support import LAKE, base_mission, start_cli, wait_for_steps
 from support.fleet import Inbox, login, wait_for
 
 from guadal_cli.channel import protocol as msg
@@ -54,13 +51,7 @@ def test_signed_controls_on_the_topic_hold_a_boat_then_abort_the_mission(stack, 
     path = tmp_path / "m.yaml"
     path.write_text(yaml.safe_dump(mission))
     run_dir = tmp_path / "run"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "guadal_cli", "run", str(path), "-o", str(run_dir), "-q"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=os.environ.copy(),
-    )
+    proc = start_cli("run", path, "-o", run_dir, "-q")
     operator = Inbox(stack.broker_port, login=login(stack, "operator"))
     key = msg.Codec(stack.secrets.key_file.read_text().strip().encode())
     control = msg.topic("guadal", None, "control")
@@ -124,22 +115,13 @@ def test_a_resumed_run_takes_controls_on_the_topic(stack, tmp_path):
         online = [json.loads(m.payload) for m in operator.on(status_topic)]
         return list(dict.fromkeys(s["session"] for s in online if s.get("state") == "online"))
 
-    def start(*args):
-        return subprocess.Popen(
-            [sys.executable, "-m", "guadal_cli", *args, "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE
-        )
-
-    proc = start("run", str(path), "-o", str(run_dir))
+    proc = start_cli("run", path, "-o", run_dir, "-q")
     try:
-        wait_for(
-            lambda: (run_dir / "metrics.csv").exists() and len(_rows(run_dir / "metrics.csv")) > 3,
-            60,
-            "the mission's first steps",
-        )
+        wait_for_steps(proc, run_dir, 4, timeout=60)  # four steps written
         proc.kill()
         proc.wait()
         killed_at = len(_rows(run_dir / "metrics.csv")) - 1
-        proc = start("resume", str(run_dir))
+        proc = start_cli("resume", run_dir, "-q")
         wait_for(lambda: len(sessions()) == 2, 60, "the resumed planner's session")
         wait_for(lambda: len(_rows(run_dir / "metrics.csv")) > killed_at + 3, 60, "steps after the resume")
         session = sessions()[-1]

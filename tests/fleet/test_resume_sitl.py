@@ -10,12 +10,10 @@ from __future__ import annotations
 import csv
 import json
 import signal
-import subprocess
-import sys
 import uuid
 
 import yaml
-from support import ROOT, run_cli
+from support import ROOT, run_cli, start_cli, wait_for_steps
 from support.fleet import processes_marked, wait_for
 
 from guadal_cli.mission import prepare
@@ -40,17 +38,9 @@ def test_a_sitl_run_killed_mid_mission_resumes_to_the_sim_result(tmp_path, monke
     MissionRunner(prepare(tmp_path / "sim.yaml"), output=tmp_path / "run-sim").run()
 
     out = tmp_path / "run-sitl"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "guadal_cli", "run", str(tmp_path / "sitl.yaml"), "-o", str(out), "-q"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-    )
+    proc = start_cli("run", tmp_path / "sitl.yaml", "-o", out, "-q")
     try:
-        wait_for(
-            lambda: (out / "metrics.csv").exists() and (out / "metrics.csv").read_text().count("\n") > 5,
-            180,
-            "the sitl run wrote no steps",
-        )
+        wait_for_steps(proc, out, 5)
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.communicate(timeout=60)
@@ -97,17 +87,9 @@ def test_a_resumed_sitl_run_goes_on_with_the_boats_still_alive(tmp_path):
         mission["backend"] = {**stack.planner_backend(), "connect_timeout": 5}
         (tmp_path / "m.yaml").write_text(yaml.safe_dump(mission))
         out = tmp_path / "run"
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "guadal_cli", "run", str(tmp_path / "m.yaml"), "-o", str(out), "-q"],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-        )
+        proc = start_cli("run", tmp_path / "m.yaml", "-o", out, "-q")
         try:
-            wait_for(
-                lambda: (out / "metrics.csv").exists() and (out / "metrics.csv").read_text().count("\n") > 5,
-                180,
-                "the sitl run wrote no steps",
-            )
+            wait_for_steps(proc, out, 5)
         finally:
             proc.send_signal(signal.SIGKILL)
             proc.communicate(timeout=60)

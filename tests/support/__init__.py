@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -32,6 +33,31 @@ def run_cli(*args, cwd=None, env=None, timeout=300) -> subprocess.CompletedProce
         text=True,
         timeout=timeout,
     )
+
+
+def start_cli(*args) -> subprocess.Popen:
+    """Start ``guadal`` as a user would in a terminal, to stop it part-way: output piped (text)."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "guadal_cli", *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def wait_for_steps(proc: subprocess.Popen, run_dir: Path, n: int, timeout: float = 180) -> None:
+    """Until the run in ``run_dir`` has written more than ``n`` steps; fails if ``proc`` ended first."""
+    import pytest
+
+    metrics = Path(run_dir) / "metrics.csv"
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if metrics.exists() and metrics.read_text().count("\n") > n:
+            return
+        if proc.poll() is not None:
+            pytest.fail(f"mission ended early: {proc.stderr.read()}")
+        time.sleep(0.02)
+    pytest.fail(f"the mission in {run_dir} wrote no more than {n} steps in {timeout} s")
 
 
 def base_mission(**overrides) -> dict:
