@@ -502,32 +502,44 @@ class Stack:
             shutil.rmtree(self.state_dir, ignore_errors=True)
 
 
+def _wait_until(proc: StackProcess, ready, deadline: float, *, exited: str, late: str):
+    """Poll ``ready()`` until it returns something; one sentence (``exited`` or ``late``, then the
+    process's last output) if ``proc`` dies first or the deadline passes."""
+    while (value := ready()) is None:
+        if not proc.alive():
+            raise GuadalError(f"{exited}: {proc.tail() or 'no output'}.")
+        if time.monotonic() > deadline:
+            raise GuadalError(f"{late}: {proc.tail() or 'no output'}.")
+        time.sleep(0.05)
+    return value
+
+
 def _wait_ready_line(proc: StackProcess, deadline: float) -> dict:
     """The first JSON object the emulator prints on stdout."""
-    log = Path(proc.log)
-    while True:
-        try:
-            lines = log.read_text(errors="replace").splitlines()
-        except OSError:
-            lines = []
-        for line in lines:
-            line = line.strip()
-            if line.startswith("{"):
-                try:
-                    data = json.loads(line)
-                except ValueError:
-                    continue
-                if isinstance(data, dict):
-                    return data
-        if not proc.alive():
-            raise GuadalError(
-                f"the MAVLink emulator exited before it was ready: {proc.tail() or 'no output'}."
-            )
-        if time.monotonic() > deadline:
-            raise GuadalError(
-                f"the MAVLink emulator printed no ready line in time: {proc.tail() or 'no output'}."
-            )
-        time.sleep(0.05)
+    return _wait_until(
+        proc,
+        lambda: _first_json_object(Path(proc.log)),
+        deadline,
+        exited="the MAVLink emulator exited before it was ready",
+        late="the MAVLink emulator printed no ready line in time",
+    )
+
+
+def _first_json_object(log: Path) -> dict | None:
+    try:
+        lines = log.read_text(errors="replace").splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        line = line.strip()
+        if line.startswith("{"):
+            try:
+                data = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(data, dict):
+                return data
+    return None
 
 
 def mavlink_endpoints(ready: dict, vehicles: int) -> list[str]:
@@ -575,16 +587,13 @@ def _listening(port: int) -> bool:
 
 
 def _wait_listening(proc: StackProcess, port: int, deadline: float) -> None:
-    while not _listening(port):
-        if not proc.alive():
-            raise GuadalError(
-                f"{proc.name} exited before it listened on port {port}: {proc.tail() or 'no output'}."
-            )
-        if time.monotonic() > deadline:
-            raise GuadalError(
-                f"{proc.name} did not listen on port {port} in time: {proc.tail() or 'no output'}."
-            )
-        time.sleep(0.05)
+    _wait_until(
+        proc,
+        lambda: True if _listening(port) else None,
+        deadline,
+        exited=f"{proc.name} exited before it listened on port {port}",
+        late=f"{proc.name} did not listen on port {port} in time",
+    )
 
 
 class StatusWatcher:
