@@ -162,19 +162,45 @@ function drawMap() {
 
 // --- side panels ---------------------------------------------------------------------------
 function drawBoats() {
+  // Rows are updated in place, never rebuilt: a panel redrawn under the pointer between press and
+  // release would swallow an operator's click on "hold" or "release".
   const controls = state.info.controls && state.info.user && state.info.run.status === "running";
+  const tbody = $("boats").querySelector("tbody");
   const rows = Object.values(state.vehicles).sort((a, b) => a.vehicle - b.vehicle);
-  $("boats").querySelector("tbody").innerHTML = rows.map((b) => `
-    <tr data-vehicle="${b.vehicle}">
-      <td><span style="color:${colourOf(b.vehicle)}">&#9650;</span> ${b.vehicle}</td>
-      <td class="num" data-field="remaining">${guadal.num(b.remaining, 4)}</td>
-      <td data-field="mode">${guadal.esc(b.mode ?? "—")}</td>
-      <td data-field="armed">${b.armed === null ? "—" : b.armed ? "yes" : "no"}</td>
-      <td class="num" data-field="battery">${b.battery === null ? "—" : guadal.num(b.battery) + " %"}</td>
-      <td class="num" data-field="link">${b.link_age_s === null ? "—" : guadal.num(b.link_age_s, 2) + " s"}</td>
-      <td data-field="fault">${guadal.esc(b.last_fault ?? "")}</td>
-      <td>${controls ? `<button data-action="${b.held ? "release" : "hold"}" data-vehicle="${b.vehicle}">${b.held ? "release" : "hold"}</button>` : ""}</td>
-    </tr>`).join("");
+  for (const b of rows) {
+    let tr = tbody.querySelector(`tr[data-vehicle="${b.vehicle}"]`);
+    if (!tr) {
+      tr = document.createElement("tr");
+      tr.dataset.vehicle = b.vehicle;
+      tr.innerHTML = `<td><span style="color:${colourOf(b.vehicle)}">&#9650;</span> ${b.vehicle}</td>
+        <td class="num" data-field="remaining"></td><td data-field="mode"></td><td data-field="armed"></td>
+        <td class="num" data-field="battery"></td><td class="num" data-field="link"></td>
+        <td data-field="fault"></td><td class="control"></td>`;
+      tbody.appendChild(tr);
+    }
+    const text = {
+      remaining: guadal.num(b.remaining, 4),
+      mode: b.mode ?? "—",
+      armed: b.armed === null ? "—" : b.armed ? "yes" : "no",
+      battery: b.battery === null ? "—" : guadal.num(b.battery) + " %",
+      link: b.link_age_s === null ? "—" : guadal.num(b.link_age_s, 2) + " s",
+      fault: b.last_fault ?? "",
+    };
+    for (const [field, value] of Object.entries(text)) {
+      const td = tr.querySelector(`td[data-field="${field}"]`);
+      if (td.textContent !== value) td.textContent = value;
+    }
+    const cell = tr.querySelector("td.control");
+    let button = cell.querySelector("button");
+    if (!controls) { if (button) button.remove(); continue; }
+    if (!button) {
+      button = document.createElement("button");
+      button.dataset.vehicle = b.vehicle;
+      cell.appendChild(button);
+    }
+    const action = b.held ? "release" : "hold";
+    if (button.dataset.action !== action) { button.dataset.action = action; button.textContent = action; }
+  }
 }
 
 function drawSamples() {
