@@ -301,7 +301,8 @@ def save_batches(
         )
     if table == "metrics":
         last = max(d["step"] for d in dicts)
-        conn.execute(update(Run).where(Run.id == run.id, Run.steps < last).values(steps=last))
+        now = _dt.datetime.now(_dt.timezone.utc).replace(tzinfo=None)  # the list's stream resends on it
+        conn.execute(update(Run).where(Run.id == run.id, Run.steps < last).values(steps=last, updated_at=now))
 
 
 def count_rows(conn, run: RunRef) -> int:

@@ -118,7 +118,13 @@ def test_a_running_mission_shows_live_and_obeys_pause_resume_hold_and_abort(
     try:
         # the new run appears in the open list without a reload, and its row opens its page
         wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, "#runs tbody tr"), what="the run in the list")
-        _click(driver, "#runs tbody tr td:nth-child(2) a")
+        link = driver.find_element(By.CSS_SELECTOR, "#runs tbody tr td:nth-child(2) a")
+        listed = driver.find_element(By.CSS_SELECTOR, "#runs tbody tr td:nth-child(7)").text
+        wait_for(
+            lambda: driver.find_element(By.CSS_SELECTOR, "#runs tbody tr td:nth-child(7)").text != listed,
+            what="the list to show the run moving on",
+        )
+        link.click()  # the element found before the update: rows change in place, a click is never lost
         wait_for(lambda: len(_markers(driver) or {}) == 3, what="three boat markers")
 
         # the step counter follows the database: never ahead of it, and catching up with it
@@ -191,10 +197,14 @@ def test_a_running_mission_shows_live_and_obeys_pause_resume_hold_and_abort(
         _click(driver, 'button[data-action="hold"][data-vehicle="1"]')
         wait_for(lambda: len(_control_events(run_dir)) == 3, what="the hold in the run's events")
         held_from = int(_rows(run_dir / "metrics.csv")[-1]["step"])
+        release = wait_for(
+            lambda: driver.find_elements(By.CSS_SELECTOR, 'button[data-action="release"][data-vehicle="1"]'),
+            what="the release button",
+        )[0]
         wait_for(
             lambda: int(_rows(run_dir / "metrics.csv")[-1]["step"]) > held_from + 4, what="steps while held"
         )
-        _click(driver, 'button[data-action="release"][data-vehicle="1"]')
+        release.click()  # found before the panel was redrawn for those steps: it is updated in place
         wait_for(lambda: len(_control_events(run_dir)) == 4, what="the release in the run's events")
         released_at = int(_rows(run_dir / "metrics.csv")[-1]["step"])
         plan = [r for r in _rows(run_dir / "trajectory.csv") if r["source"] == "plan"]
