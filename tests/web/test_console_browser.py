@@ -269,3 +269,40 @@ def test_a_running_mission_shows_live_and_obeys_pause_resume_hold_and_abort(
             proc.kill()
             proc.wait()
     assert yaml.safe_load((run_dir / "mission.resolved.yaml").read_text())["output"]["database"] == db
+
+
+def _link_age(driver, vehicle: int) -> float | None:
+    cell = (_boat_cells(driver, vehicle) or {}).get("link", "—")
+    return None if cell in ("—", "") else float(cell.split()[0])
+
+
+def test_a_boats_link_age_keeps_growing_on_screen_when_its_reports_stop(
+    tmp_path, write_mission, console_and_browser
+):
+    """A stalled mission (here: stopped with SIGSTOP) sends no more rows; the page must not go on
+    showing the last, healthy link age as if the boat were still heard."""
+    import os
+    import signal
+
+    db, console, driver = console_and_browser
+    mission = yaml.safe_load((ROOT / "missions" / "lake_greedy_sitl.yaml").read_text())
+    mission["map"] = str(ROOT / "maps" / "urban_lake.json")
+    mission["backend"].update(speedup=20)
+    mission["output"] = {"database": db}
+    proc = start_mission(write_mission(mission), tmp_path / "run")
+    try:
+        engine = open_database(db)
+        run_id = wait_for(lambda: queries.list_runs(engine), timeout=60, what="the run in the database")[0][
+            "id"
+        ]
+        driver.get(f"{console.url}/runs/{run_id}")
+        wait_for(lambda: _link_age(driver, 0) is not None, timeout=90, what="boat 0's link age")
+        os.kill(proc.pid, signal.SIGSTOP)
+        time.sleep(1.5)  # rows already on their way arrive
+        first = _link_age(driver, 0)
+        time.sleep(3)
+        assert _link_age(driver, 0) >= first + 2
+    finally:
+        os.kill(proc.pid, signal.SIGCONT)
+        proc.terminate()
+        proc.wait(timeout=60)

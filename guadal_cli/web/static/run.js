@@ -161,6 +161,16 @@ function drawMap() {
 }
 
 // --- side panels ---------------------------------------------------------------------------
+// A boat's link age as reported, plus the time since this page heard that report while the
+// run goes on live: when rows stop coming (a dead link, a stalled mission) the age keeps growing
+// on screen instead of freezing at the last, healthy-looking value.
+function linkAge(b) {
+  if (b.link_age_s === null) return "—";
+  const live = state.view >= state.maxStep && state.info.run.status === "running" && b.heard !== null;
+  const age = b.link_age_s + (live ? (performance.now() - b.heard) / 1000 : 0);
+  return guadal.num(age, 2) + " s";
+}
+
 function drawBoats() {
   // Rows are updated in place, never rebuilt: a panel redrawn under the pointer between press and
   // release would swallow an operator's click on "hold" or "release".
@@ -183,7 +193,7 @@ function drawBoats() {
       mode: b.mode ?? "—",
       armed: b.armed === null ? "—" : b.armed ? "yes" : "no",
       battery: b.battery === null ? "—" : guadal.num(b.battery) + " %",
-      link: b.link_age_s === null ? "—" : guadal.num(b.link_age_s, 2) + " s",
+      link: linkAge(b),
       fault: b.last_fault ?? "",
     };
     for (const [field, value] of Object.entries(text)) {
@@ -273,6 +283,8 @@ function apply(update) {
   state.track.push(...(update.track || []));
   state.samples.push(...(update.measurements || []));
   state.events.push(...(update.events || []));
+  const now = performance.now();
+  for (const r of update.vehicles || []) r.heard = now; // the link's age counts up from here
   state.status.push(...(update.vehicles || []));
   state.targets.push(...(update.targets || []));
   state.fields.push(...(update.fields || []));
@@ -330,6 +342,7 @@ function updateBoats() {
       armed: r.armed ?? null,
       battery: r.battery ?? null,
       link_age_s: r.link_age_s ?? null,
+      heard: r.heard ?? null,
       held: !!held[v],
       last_fault: r.fault || fault[v] || "",
     };
@@ -373,6 +386,7 @@ async function start() {
     if (b) control(b.dataset.action, b.dataset.vehicle === undefined ? null : Number(b.dataset.vehicle));
   });
   guadal.stream(`/api/runs/${encodeURIComponent(runId)}/stream`, { update: apply });
+  setInterval(drawBoats, 1000); // the link ages count up between rows
 }
 
 start();
