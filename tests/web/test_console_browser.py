@@ -292,9 +292,8 @@ def test_a_boats_link_age_keeps_growing_on_screen_when_its_reports_stop(
     proc = start_mission(write_mission(mission), tmp_path / "run")
     try:
         engine = open_database(db)
-        run_id = wait_for(lambda: queries.list_runs(engine), timeout=60, what="the run in the database")[0][
-            "id"
-        ]
+        runs = wait_for(lambda: queries.list_runs(engine), timeout=60, what="the run in the database")
+        run_id = runs[0]["id"]
         driver.get(f"{console.url}/runs/{run_id}")
         wait_for(lambda: _link_age(driver, 0) is not None, timeout=90, what="boat 0's link age")
         os.kill(proc.pid, signal.SIGSTOP)
