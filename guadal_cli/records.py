@@ -135,6 +135,10 @@ class RecordSink:
 
     def started(self, directory: Path, manifest: dict, mission: dict) -> None: ...
 
+    def resumed(self, directory: Path, manifest: dict, mission: dict) -> None:
+        """A run goes on after an interruption (``RunRecorder.reopen``): its files were cut back
+        to ``manifest["resumes"][-1]["after_step"]`` and rows are appended after them."""
+
     def appended(self, table: str, first_row: int, rows: list, columns: list | None = None) -> None: ...
 
     def finished(self, manifest: dict) -> None: ...
@@ -150,11 +154,12 @@ class _CsvStream:
 
     def __init__(self, path: Path, columns: Sequence[str], append: bool = False):
         self.columns = list(columns)
-        self.rows_written = 0
         self._fh = open(path, "a" if append else "w", newline="", encoding="utf-8")
         if not append:
             self._fh.write(_line(self.columns))
         self._fh.flush()
+        # rows so far, header aside (appending: the file was cut back to whole lines)
+        self.rows_written = max(Path(path).read_bytes().count(b"\n") - 1, 0) if append else 0
 
     def write(self, rows: Iterable[Sequence]) -> None:
         rows = rows if isinstance(rows, list) else list(rows)
@@ -328,11 +333,13 @@ class RunRecorder:
         self._open_streams(append=False)
 
     @classmethod
-    def reopen(cls, directory: Path, metric_columns: Sequence[str]) -> RunRecorder:
+    def reopen(
+        cls, directory: Path, metric_columns: Sequence[str], sinks: Sequence[RecordSink] = ()
+    ) -> RunRecorder:
         """Go on writing an interrupted run; its manifest records this resume."""
         self = cls.__new__(cls)
         self.directory = Path(directory)
-        self.sinks = []  # a resumed run reaches the database through 'guadal db sync'
+        self.sinks = list(sinks)
         self._lock = _hold_lock(self.directory)
         self.manifest = read_manifest(self.directory)
         if self.manifest.get("metric_columns") != list(metric_columns):
@@ -355,6 +362,10 @@ class RunRecorder:
         self.manifest.update(status="running", ended_at=None, error=None, steps=max(self.replay_until, 0))
         self._write_manifest()
         self._open_streams(append=True)
+        if self.sinks:
+            resolved = yaml.safe_load((self.directory / "mission.resolved.yaml").read_text()) or {}
+            for sink in self.sinks:
+                sink.resumed(self.directory, dict(self.manifest), resolved)
         return self
 
     def _open_streams(self, append: bool) -> None:

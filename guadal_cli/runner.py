@@ -184,15 +184,12 @@ class MissionRunner:
 
         prep = self.prep
         columns = metric_columns(self.n, self.environment.metric_names)
-        if self.resume:  # the database catches up with 'guadal db sync RUN' afterwards
-            self.recorder = RunRecorder.reopen(self.output, columns)
+        sinks = [DatabaseWriter(self.database)] if self.database else []
+        if self.resume:  # the database is brought back in line with the cut files, then goes on live
+            self.recorder = RunRecorder.reopen(self.output, columns, sinks=sinks)
         else:
             self.recorder = RunRecorder(
-                self.output,
-                prep.resolved_dict(),
-                self._manifest(),
-                columns,
-                sinks=[DatabaseWriter(self.database)] if self.database else [],
+                self.output, prep.resolved_dict(), self._manifest(), columns, sinks=sinks
             )
         previous_term = signal.getsignal(signal.SIGTERM)
 

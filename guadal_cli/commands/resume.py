@@ -17,6 +17,14 @@ def resume(
     run_dir: Annotated[Path, typer.Argument(help="Run directory of an unfinished run.")],
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    db: Annotated[
+        str | None,
+        typer.Option(
+            help="The database the run goes on writing to, brought back in line with its files first "
+            "(default: $GUADAL_DB, the mission's output.database, else guadal.db beside the runs). "
+            "Give it when the mission's URL had a password: the run directory keeps it masked."
+        ),
+    ] = None,
 ) -> None:
     """Go on with an unfinished run where it stopped, appending to its run directory.
 
@@ -26,5 +34,5 @@ def resume(
     from ..resume import prepare_resume
     from ..runner import MissionRunner
 
-    runner = MissionRunner(prepare_resume(run_dir), output=run_dir, resume=True)
+    runner = MissionRunner(prepare_resume(run_dir), output=run_dir, resume=True, database=db)
     run_with_progress(runner, quiet=quiet, as_json=as_json)

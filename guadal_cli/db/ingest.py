@@ -16,7 +16,7 @@ from pathlib import Path
 import yaml
 
 from ..errors import GuadalError
-from .store import count_rows, parse_cell, save_rows, save_run
+from .store import count_rows, forget_replaced_rows, parse_cell, save_rows, save_run
 
 SPOOL_NAME = "database.spool.jsonl"
 _BATCH = 2000
@@ -73,29 +73,45 @@ def read_run(directory: Path) -> tuple[dict, dict]:
 
 
 def import_run(engine, directory: Path) -> Imported:
-    """Make the database hold everything in ``directory``; safe to repeat, safe beside a live writer."""
+    """Make the database hold everything in ``directory``; safe to repeat, safe beside a live writer.
+
+    A run that was resumed is mirrored afresh (``forget_replaced_rows``): rows its first process
+    delivered past the resume's cut would otherwise stand in for the rows written since.
+    """
     directory = Path(directory).resolve()
     manifest, mission = read_run(directory)
-    total = 0
     with engine.begin() as conn:
         run = save_run(conn, manifest, mission, str(directory), base=directory)
         before = count_rows(conn, run)
-        for table, name in _FILES:
-            header, rows = read_csv_rows(directory / name)
-            if table == "metrics" and header:
-                run.metric_columns = header
-            total += len(rows)
-            for start in range(0, len(rows), _BATCH):
-                save_rows(conn, run, table, start, rows[start : start + _BATCH])
-        header, rows = read_csv_rows(directory / "fields.csv")
-        total += len(rows)
-        for start in range(0, len(rows), _BATCH):
-            save_rows(conn, run, "fields", start, rows[start : start + _BATCH], columns=header)
+        resumes = manifest.get("resumes") or []
+        if resumes:
+            forget_replaced_rows(conn, run, min(int(r.get("after_step", -1)) for r in resumes))
+        total = save_run_files(conn, run, directory)
         new = count_rows(conn, run) - before
     spool = directory / SPOOL_NAME
     if spool.exists():
         spool.unlink()  # everything it held is in the CSVs, and now in the database
-    return Imported(directory, run.uid, str(manifest.get("status")), total, new)
+    return Imported(directory, run.uid, str(manifest.get("status")), total, max(new, 0))
+
+
+def save_run_files(conn, run, directory: Path) -> int:
+    """Insert what the database lacks of the run directory's CSVs; returns the rows read."""
+    total = 0
+    for table, name in (*_FILES, ("fields", "fields.csv")):
+        header, rows = read_csv_rows(directory / name)
+        if table == "metrics" and header:
+            run.metric_columns = header
+        total += len(rows)
+        for start in range(0, len(rows), _BATCH):
+            save_rows(
+                conn,
+                run,
+                table,
+                start,
+                rows[start : start + _BATCH],
+                columns=header if table == "fields" else None,
+            )
+    return total
 
 
 def find_run_dirs(paths: list[Path]) -> list[Path]:

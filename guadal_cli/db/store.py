@@ -15,7 +15,7 @@ import numbers
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sqlalchemy import func, select, text, update
+from sqlalchemy import delete, func, select, text, update
 
 from ..records import MEASUREMENT_COLUMNS, TARGET_COLUMNS, TRAJECTORY_COLUMNS, VEHICLE_COLUMNS
 from .models import ROW_TABLES, Map, Run, Vehicle
@@ -303,6 +303,23 @@ def save_batches(
         last = max(d["step"] for d in dicts)
         now = _dt.datetime.now(_dt.timezone.utc).replace(tzinfo=None)  # the list's stream resends on it
         conn.execute(update(Run).where(Run.id == run.id, Run.steps < last).values(steps=last, updated_at=now))
+
+
+def forget_replaced_rows(conn, run: RunRef, after_step: int) -> None:
+    """Before a resumed run is mirrored again: drop the rows its files no longer hold.
+
+    A resume cuts the CSVs back to the last complete step and writes the rest anew, so rows past
+    the cut in the database may differ from the new ones under the same keys (which inserts
+    skip). The file-mirrored tables are emptied to be filled from the CSVs again; the live model
+    maps are kept up to the cut; events are the manifest's, which a resume never rewrites.
+    """
+    for name, model in ROW_TABLES.items():
+        if name == "events":
+            continue
+        stmt = delete(model).where(model.run_id == run.id)
+        if name == "field_snapshots":
+            stmt = stmt.where(model.step > after_step)
+        conn.execute(stmt)
 
 
 def count_rows(conn, run: RunRef) -> int:

@@ -94,10 +94,25 @@ class DatabaseWriter(RecordSink):
 
     # --- the sink contract (called by the recorder on the mission thread) ---------------------
     def started(self, directory: Path, manifest: dict, mission: dict) -> None:
+        self._start(directory, mission, {"op": "run", "manifest": _jsonable(manifest)})
+
+    def resumed(self, directory: Path, manifest: dict, mission: dict) -> None:
+        """First bring the database in line with the cut files (from the CSVs), then go on live.
+
+        A spool left by the interrupted process is dropped: what it held that still counts is in
+        the CSVs, and its rows past the cut must not be replayed over the new ones.
+        """
+        (Path(directory) / SPOOL_NAME).unlink(missing_ok=True)
+        after = int(manifest["resumes"][-1]["after_step"])
+        self._start(
+            directory, mission, {"op": "resync", "manifest": _jsonable(manifest), "after_step": after}
+        )
+
+    def _start(self, directory: Path, mission: dict, first: dict) -> None:
         self.spool_path_ = Path(directory) / SPOOL_NAME
         self._directory = str(Path(directory).resolve())
         self._mission = _jsonable(mission)
-        self._put({"op": "run", "manifest": _jsonable(manifest)})
+        self._put(first)
         self._thread = threading.Thread(target=self._loop, name="guadal-db-writer", daemon=True)
         _LIVE.add(self)
         self._thread.start()
@@ -238,7 +253,8 @@ class DatabaseWriter(RecordSink):
 
     def _apply(self, conn, items: list[dict]) -> None:
         """Runs in order; between them, each table's row batches in one statement."""
-        from .store import save_batches, save_run
+        from .ingest import save_run_files
+        from .store import forget_replaced_rows, save_batches, save_run
 
         pending: dict[str, list] = {}
 
@@ -249,9 +265,12 @@ class DatabaseWriter(RecordSink):
 
         columns_of = {}
         for item in items:
-            if item["op"] == "run":
+            if item["op"] in ("run", "resync"):
                 flush()
                 self.run_ = save_run(conn, item["manifest"], self._mission, self._directory)
+                if item["op"] == "resync":
+                    forget_replaced_rows(conn, self.run_, item["after_step"])
+                    save_run_files(conn, self.run_, Path(self._directory))
             else:
                 rows = [[cell(v) for v in row] for row in item["rows"]]
                 pending.setdefault(item["table"], []).append((item["first"], rows))

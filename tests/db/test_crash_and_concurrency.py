@@ -4,18 +4,28 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import sqlalchemy
 import yaml
 from support import base_mission, run_cli
 from support.db import RUN_FILES, assert_same_run_files
 
 from guadal_cli.db import queries
 from guadal_cli.db.export import export_run
+from guadal_cli.db.models import Measurement
 from guadal_cli.errors import GuadalError
+
+# slow_planner:SlowGreedy, a greedy that waits: a sim mission long enough to be killed part-way
+WITH_SLOW_PLANNER = {
+    "PYTHONPATH": os.pathsep.join(
+        [str(Path(__file__).resolve().parents[1] / "web"), os.environ.get("PYTHONPATH", "")]
+    )
+}
 
 
 def start_run(mission: dict, folder: Path, name: str, db_url: str) -> tuple[subprocess.Popen, Path]:
@@ -27,6 +37,7 @@ def start_run(mission: dict, folder: Path, name: str, db_url: str) -> tuple[subp
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        env={**os.environ, **WITH_SLOW_PLANNER},
     )
     return proc, out
 
@@ -101,3 +112,44 @@ def test_a_postgresql_password_stays_out_of_files_and_logs(pg_database, tmp_path
     run = queries.get_run(engine, "run")
     assert secret not in json.dumps(run["manifest"]) + json.dumps(run["mission"])
     assert_same_run_files(export_run(engine, run["id"], tmp_path / "exported"), tmp_path / "run")
+
+
+def test_a_resumed_mission_writes_on_live_and_the_database_matches_its_files(db_url, tmp_path):
+    """kill -9, then what the killed process delivered past the last complete step differs from
+    what the resumed one writes (at sitl the boats are elsewhere: here the database row is
+    altered to stand for that), then 'guadal resume': the database equals the files, no sync."""
+    slow_mission = base_mission(algorithm={"type": "slow_planner:SlowGreedy", "delay_s": 0.05})
+    proc, out = start_run(slow_mission, tmp_path, "resumed", db_url)
+    deadline = time.monotonic() + 300
+    while _steps_in_database(db_url) < 5:
+        assert proc.poll() is None, "the mission ended before it could be killed"
+        assert time.monotonic() < deadline, "the mission wrote no steps to the database"
+        time.sleep(0.1)
+    proc.kill()
+    proc.wait()
+    engine = queries.open_database(db_url)
+    run = queries.get_run(engine, "resumed")
+    # the last step's metrics row never reached the file: the resume cuts that step away
+    metrics = (out / "metrics.csv").read_bytes()
+    metrics = metrics[: metrics.rfind(b"\n") + 1]
+    (out / "metrics.csv").write_bytes(metrics[: metrics.rfind(b"\n", 0, len(metrics) - 1) + 1])
+    cut_step = int(metrics.rsplit(b"\n", 2)[-2].split(b",")[0])
+    with engine.begin() as conn:
+        conn.execute(
+            sqlalchemy.update(Measurement)
+            .where(Measurement.run_id == run["id"], Measurement.step == cut_step)
+            .values(value=999.0)
+        )
+    assert any(m["value"] == 999.0 for m in queries.measurements(engine, run["id"]))
+
+    resumed = run_cli("resume", out, "--db", db_url, "--json", env=WITH_SLOW_PLANNER)
+    assert resumed.returncode == 0, resumed.stderr
+    assert json.loads((out / "manifest.json").read_text())["status"] == "complete"
+    deadline = time.monotonic() + 60  # the writer delivers its last rows as the process exits
+    while queries.get_run(engine, run["id"])["status"] != "complete":
+        assert time.monotonic() < deadline, "the database never heard the resumed run end"
+        time.sleep(0.1)
+    assert_same_run_files(export_run(engine, run["id"], tmp_path / "exported"), out)
+    assert not (out / "database.spool.jsonl").exists()
+    again = json.loads(run_cli("db", "sync", out, "--db", db_url, "--json").stdout)
+    assert again[0]["new rows"] == 0
