@@ -63,11 +63,11 @@ def _steps_in_database(db_url: str) -> int:
     return len(queries.steps(engine, runs[0]["id"])) if runs else 0
 
 
-def test_a_killed_mission_is_made_whole_by_db_sync(db_url, tmp_path):
-    long_mission = base_mission(
-        fleet={"vehicles": 3, "initial_positions": "auto", "max_distance": 4000.0, "speed": 0.5}
+def _killed_after_five_steps(folder: Path, name: str, db_url: str) -> Path:
+    """A slow sim mission, ``kill -9``-ed once the database has five of its steps; its run directory."""
+    proc, out = start_run(
+        base_mission(algorithm={"type": "slow_planner:SlowGreedy", "delay_s": 0.05}), folder, name, db_url
     )
-    proc, out = start_run(long_mission, tmp_path, "killed", db_url)
     deadline = time.monotonic() + 300
     while _steps_in_database(db_url) < 5:
         assert proc.poll() is None, "the mission ended before it could be killed"
@@ -75,6 +75,11 @@ def test_a_killed_mission_is_made_whole_by_db_sync(db_url, tmp_path):
         time.sleep(0.1)
     proc.kill()
     proc.wait()
+    return out
+
+
+def test_a_killed_mission_is_made_whole_by_db_sync(db_url, tmp_path):
+    out = _killed_after_five_steps(tmp_path, "killed", db_url)
     engine = queries.open_database(db_url)
     run = queries.get_run(engine, "killed")
     assert run["status"] == "running"  # what the manifest says: the process never finished it
@@ -118,15 +123,7 @@ def test_a_resumed_mission_writes_on_live_and_the_database_matches_its_files(db_
     """kill -9, then what the killed process delivered past the last complete step differs from
     what the resumed one writes (at sitl the boats are elsewhere: here the database row is
     altered to stand for that), then 'guadal resume': the database equals the files, no sync."""
-    slow_mission = base_mission(algorithm={"type": "slow_planner:SlowGreedy", "delay_s": 0.05})
-    proc, out = start_run(slow_mission, tmp_path, "resumed", db_url)
-    deadline = time.monotonic() + 300
-    while _steps_in_database(db_url) < 5:
-        assert proc.poll() is None, "the mission ended before it could be killed"
-        assert time.monotonic() < deadline, "the mission wrote no steps to the database"
-        time.sleep(0.1)
-    proc.kill()
-    proc.wait()
+    out = _killed_after_five_steps(tmp_path, "resumed", db_url)
     engine = queries.open_database(db_url)
     run = queries.get_run(engine, "resumed")
     # the last step's metrics row never reached the file: the resume cuts that step away
