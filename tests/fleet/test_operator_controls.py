@@ -45,6 +45,17 @@ def _events(run_dir) -> list[dict]:
         return []
 
 
+def _control(operator, key, session: str, request_id: str, action: str, vehicle: int | None = None) -> None:
+    """An operator's signed control on the fleet topic, for the planner session ``session``."""
+    control = msg.topic("guadal", None, "control")
+    fields = {"vehicle": vehicle} if vehicle is not None else {}
+    operator.client.publish(
+        control,
+        key.encode(control, "control", session=session, id=request_id, action=action, **fields),
+        qos=1,
+    ).wait_for_publish(10)
+
+
 def test_signed_controls_on_the_topic_hold_a_boat_then_abort_the_mission(stack, tmp_path):
     mission = base_mission(backend={**stack.planner_backend(), "offline_grace": 20})
     mission["fleet"].update(vehicles=N, max_distance=3000.0)
@@ -54,7 +65,6 @@ def test_signed_controls_on_the_topic_hold_a_boat_then_abort_the_mission(stack, 
     proc = start_cli("run", path, "-o", run_dir, "-q")
     operator = Inbox(stack.broker_port, login=login(stack, "operator"))
     key = msg.Codec(stack.secrets.key_file.read_text().strip().encode())
-    control = msg.topic("guadal", None, "control")
     status_topic = msg.topic("guadal", None, "status")
     try:
         operator.subscribe(status_topic)
@@ -66,17 +76,13 @@ def test_signed_controls_on_the_topic_hold_a_boat_then_abort_the_mission(stack, 
         session = json.loads(online[-1].payload)["session"]
         wait_for(lambda: len(_rows(run_dir / "metrics.csv")) > 3, 60, "the mission's first steps")
 
-        operator.client.publish(
-            control, key.encode(control, "control", session=session, id="h1", action="hold", vehicle=1), qos=1
-        ).wait_for_publish(10)
+        _control(operator, key, session, "h1", "hold", vehicle=1)
         wait_for(lambda: _events(run_dir), 30, "the hold in the run's events")
         held_from = int(_rows(run_dir / "metrics.csv")[-1]["step"])
         wait_for(
             lambda: int(_rows(run_dir / "metrics.csv")[-1]["step"]) > held_from + 3, 60, "steps while held"
         )
-        operator.client.publish(
-            control, key.encode(control, "control", session=session, id="a1", action="abort"), qos=1
-        ).wait_for_publish(10)
+        _control(operator, key, session, "a1", "abort")
         assert proc.wait(timeout=120) == 0, proc.stderr.read()
     finally:
         operator.close()
@@ -106,7 +112,6 @@ def test_a_resumed_run_takes_controls_on_the_topic(stack, tmp_path):
     run_dir = tmp_path / "run"
     operator = Inbox(stack.broker_port, login=login(stack, "operator"))
     key = msg.Codec(stack.secrets.key_file.read_text().strip().encode())
-    control = msg.topic("guadal", None, "control")
     status_topic = msg.topic("guadal", None, "status")
     boat_status = msg.topic("guadal", 1, "status")
     operator.subscribe(status_topic, boat_status)
@@ -126,17 +131,13 @@ def test_a_resumed_run_takes_controls_on_the_topic(stack, tmp_path):
         wait_for(lambda: len(_rows(run_dir / "metrics.csv")) > killed_at + 3, 60, "steps after the resume")
         session = sessions()[-1]
         held_at = len(operator.on(boat_status))
-        operator.client.publish(
-            control, key.encode(control, "control", session=session, id="h1", action="hold", vehicle=1), qos=1
-        ).wait_for_publish(10)
+        _control(operator, key, session, "h1", "hold", vehicle=1)
         operator.wait(
             lambda: any(json.loads(m.payload)["state"] == "hold" for m in operator.on(boat_status)[held_at:]),
             30,
             "boat 1's bridge in HOLD",
         )
-        operator.client.publish(
-            control, key.encode(control, "control", session=session, id="a1", action="abort"), qos=1
-        ).wait_for_publish(10)
+        _control(operator, key, session, "a1", "abort")
         assert proc.wait(timeout=120) == 0, proc.stderr.read()
     finally:
         operator.close()
