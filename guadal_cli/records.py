@@ -360,13 +360,27 @@ class RunRecorder:
             }
         )
         self.manifest.update(status="running", ended_at=None, error=None, steps=max(self.replay_until, 0))
-        self._write_manifest()
         self._open_streams(append=True)
+        # what the cut kept of each row file: a database mirror drops what it holds beyond that
+        self.manifest["resumes"][-1]["kept_rows"] = {
+            table: stream.rows_written for table, stream in self._streams()
+        }
+        self._write_manifest()
         if self.sinks:
             resolved = yaml.safe_load((self.directory / "mission.resolved.yaml").read_text()) or {}
             for sink in self.sinks:
                 sink.resumed(self.directory, dict(self.manifest), resolved)
         return self
+
+    def _streams(self) -> list[tuple[str, _CsvStream]]:
+        """The row files by the name their rows go to the sinks under."""
+        return [
+            ("metrics", self.metrics),
+            ("trajectory", self.trajectory),
+            ("measurements", self.measurements),
+            ("vehicles", self.vehicles),
+            ("targets", self.targets),
+        ]
 
     def _open_streams(self, append: bool) -> None:
         d = self.directory
@@ -453,7 +467,7 @@ class RunRecorder:
             sink.appended("events", len(events) - 1, [[kind, vehicle, time_s, message, entry]])
 
     def finish(self, status: str, error: str | None = None, extra: dict | None = None) -> None:
-        for stream in (self.metrics, self.trajectory, self.measurements, self.vehicles, self.targets):
+        for _, stream in self._streams():
             stream.close()
         self.manifest.update(status=status, ended_at=now_iso(), error=error, **(extra or {}))
         self._write_manifest()

@@ -75,8 +75,8 @@ def read_run(directory: Path) -> tuple[dict, dict]:
 def import_run(engine, directory: Path) -> Imported:
     """Make the database hold everything in ``directory``; safe to repeat, safe beside a live writer.
 
-    A run that was resumed is mirrored afresh (``forget_replaced_rows``): rows its first process
-    delivered past the resume's cut would otherwise stand in for the rows written since.
+    A resumed run first loses the rows past its earliest cut (``forget_replaced_rows``): rows an
+    earlier process delivered there would otherwise stand in for the rows written since.
     """
     directory = Path(directory).resolve()
     manifest, mission = read_run(directory)
@@ -84,8 +84,8 @@ def import_run(engine, directory: Path) -> Imported:
         run = save_run(conn, manifest, mission, str(directory), base=directory)
         before = count_rows(conn, run)
         resumes = manifest.get("resumes") or []
-        if resumes:
-            forget_replaced_rows(conn, run, min(int(r.get("after_step", -1)) for r in resumes))
+        if resumes:  # the earliest cut: what any process delivered after it may have been replaced
+            forget_replaced_rows(conn, run, min(resumes, key=lambda r: int(r.get("after_step", -1))))
         total = save_run_files(conn, run, directory)
         new = count_rows(conn, run) - before
     spool = directory / SPOOL_NAME

@@ -305,20 +305,25 @@ def save_batches(
         conn.execute(update(Run).where(Run.id == run.id, Run.steps < last).values(steps=last, updated_at=now))
 
 
-def forget_replaced_rows(conn, run: RunRef, after_step: int) -> None:
+def forget_replaced_rows(conn, run: RunRef, resume: dict) -> None:
     """Before a resumed run is mirrored again: drop the rows its files no longer hold.
 
-    A resume cuts the CSVs back to the last complete step and writes the rest anew, so rows past
-    the cut in the database may differ from the new ones under the same keys (which inserts
-    skip). The file-mirrored tables are emptied to be filled from the CSVs again; the live model
-    maps are kept up to the cut; events are the manifest's, which a resume never rewrites.
+    A resume cuts the CSVs back to the last complete step (``resume["after_step"]``, keeping
+    ``resume["kept_rows"]`` rows of each file) and writes the rest anew, so rows past the cut in
+    the database may differ from the new ones under the same keys, which inserts skip. Rows up
+    to the cut stay as they are (a console following the run sees only what is new); without
+    ``kept_rows`` (older runs) every file-mirrored row goes, to be read again from the CSVs.
+    Final fields are written anew at the end; events are the manifest's, which a resume keeps.
     """
+    after_step, kept = int(resume.get("after_step", -1)), resume.get("kept_rows")
     for name, model in ROW_TABLES.items():
+        stmt = delete(model).where(model.run_id == run.id)
         if name == "events":
             continue
-        stmt = delete(model).where(model.run_id == run.id)
-        if name == "field_snapshots":
+        if name in ("metrics", "field_snapshots"):
             stmt = stmt.where(model.step > after_step)
+        elif name != "fields" and kept is not None:
+            stmt = stmt.where(model.seq >= int(kept.get(name, 0)))
         conn.execute(stmt)
 
 

@@ -103,10 +103,8 @@ class DatabaseWriter(RecordSink):
         the CSVs, and its rows past the cut must not be replayed over the new ones.
         """
         (Path(directory) / SPOOL_NAME).unlink(missing_ok=True)
-        after = int(manifest["resumes"][-1]["after_step"])
-        self._start(
-            directory, mission, {"op": "resync", "manifest": _jsonable(manifest), "after_step": after}
-        )
+        resume = _jsonable(manifest["resumes"][-1])
+        self._start(directory, mission, {"op": "resync", "manifest": _jsonable(manifest), "resume": resume})
 
     def _start(self, directory: Path, mission: dict, first: dict) -> None:
         self.spool_path_ = Path(directory) / SPOOL_NAME
@@ -269,7 +267,7 @@ class DatabaseWriter(RecordSink):
                 flush()
                 self.run_ = save_run(conn, item["manifest"], self._mission, self._directory)
                 if item["op"] == "resync":
-                    forget_replaced_rows(conn, self.run_, item["after_step"])
+                    forget_replaced_rows(conn, self.run_, item["resume"])
                     save_run_files(conn, self.run_, Path(self._directory))
             else:
                 rows = [[cell(v) for v in row] for row in item["rows"]]

@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import sqlalchemy
 import yaml
 from support import base_mission, run_cli
@@ -119,10 +120,12 @@ def test_a_postgresql_password_stays_out_of_files_and_logs(pg_database, tmp_path
     assert_same_run_files(export_run(engine, run["id"], tmp_path / "exported"), tmp_path / "run")
 
 
-def test_a_resumed_mission_writes_on_live_and_the_database_matches_its_files(db_url, tmp_path):
+@pytest.mark.parametrize("during_resume", ["live", "offline, then db sync"])
+def test_a_resumed_mission_leaves_the_database_equal_to_its_files(db_url, tmp_path, during_resume):
     """kill -9, then what the killed process delivered past the last complete step differs from
     what the resumed one writes (at sitl the boats are elsewhere: here the database row is
-    altered to stand for that), then 'guadal resume': the database equals the files, no sync."""
+    altered to stand for that), then 'guadal resume' writing live to the database, or with the
+    database off and 'guadal db sync' after: either way the database equals the files."""
     out = _killed_after_five_steps(tmp_path, "resumed", db_url)
     engine = queries.open_database(db_url)
     run = queries.get_run(engine, "resumed")
@@ -138,15 +141,20 @@ def test_a_resumed_mission_writes_on_live_and_the_database_matches_its_files(db_
             .values(value=999.0)
         )
     assert any(m["value"] == 999.0 for m in queries.measurements(engine, run["id"]))
+    kept = {(m["seq"], m["id"]) for m in queries.measurements(engine, run["id"]) if m["step"] < cut_step}
 
-    resumed = run_cli("resume", out, "--db", db_url, "--json", env=WITH_SLOW_PLANNER)
+    live = during_resume == "live"
+    resumed = run_cli("resume", out, "--db", db_url if live else "none", "--json", env=WITH_SLOW_PLANNER)
     assert resumed.returncode == 0, resumed.stderr
     assert json.loads((out / "manifest.json").read_text())["status"] == "complete"
-    deadline = time.monotonic() + 60  # the writer delivers its last rows as the process exits
-    while queries.get_run(engine, run["id"])["status"] != "complete":
-        assert time.monotonic() < deadline, "the database never heard the resumed run end"
-        time.sleep(0.1)
+    if not live:
+        assert queries.get_run(engine, run["id"])["status"] == "running"
+        synced = run_cli("db", "sync", out, "--db", db_url, "--json")
+        assert synced.returncode == 0, synced.stderr
+    assert queries.get_run(engine, run["id"])["status"] == "complete"  # delivered as the process exited
     assert_same_run_files(export_run(engine, run["id"], tmp_path / "exported"), out)
+    # rows before the cut were left alone: a console following the run gets only what is new
+    assert kept <= {(m["seq"], m["id"]) for m in queries.measurements(engine, run["id"])}
     assert not (out / "database.spool.jsonl").exists()
     again = json.loads(run_cli("db", "sync", out, "--db", db_url, "--json").stdout)
     assert again[0]["new rows"] == 0
