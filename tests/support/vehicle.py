@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 import uuid
 from pathlib import Path
 
@@ -149,11 +150,20 @@ class Planner(Inbox):
             self.raw(messages.encode(kind, seq=seq, **fields))
         return seq
 
-    def start_session(self) -> int:
-        """Make the bridge follow this planner (the first thing a planner does)."""
+    def start_session(self, timeout: float = 30.0) -> int:
+        """Make the bridge follow this planner (the first thing a planner does), sending the
+        start again every 2 s until it is accepted, as guadal's planner does with anything
+        unanswered (a bridge answers a repeated seq by repeating its answer)."""
         seq = self.send("start")
-        self.wait_ack(seq, "accepted", 10)
-        return seq
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                self.wait_ack(seq, "accepted", min(2.0, max(deadline - time.monotonic(), 0.0)))
+                return seq
+            except AssertionError:
+                if time.monotonic() >= deadline:
+                    raise
+                self.send("start", seq=seq)
 
     def publish_status(self, state: str) -> None:
         self.client.publish(
