@@ -14,7 +14,7 @@ import uuid
 
 import yaml
 from support import ROOT, run_cli, start_cli, wait_for_steps
-from support.fleet import processes_marked, wait_for
+from support.fleet import describe_processes, processes_marked, wait_for
 
 from guadal_cli.mission import prepare
 from guadal_cli.runner import MissionRunner
@@ -47,7 +47,10 @@ def test_a_sitl_run_killed_mid_mission_resumes_to_the_sim_result(tmp_path, monke
     killed_at = len(rows(out, "metrics.csv")) - 1
     assert json.loads((out / "manifest.json").read_text())["status"] == "running"
     # the killed run's own stack notices and goes down
-    wait_for(lambda: not processes_marked(mark), 60, "the killed run's stack is still up")
+    try:
+        wait_for(lambda: not processes_marked(mark), 60, "the killed run's stack to go down")
+    except AssertionError as exc:
+        raise AssertionError(f"{exc}; still up: {describe_processes(processes_marked(mark))}") from None
 
     done = run_cli("resume", out, "--json", timeout=600)
     assert done.returncode == 0, done.stderr
@@ -140,6 +143,52 @@ def test_a_resumed_sitl_run_goes_on_with_the_boats_still_alive(tmp_path):
                 assert fleet.positions[v] == graph.nearest_node(*fix) != far
             assert fleet.positions[1] == far and set(fleet.lost) == {1}
             assert fleet.distances == {0: 10.0, 1: 20.0, 2: 30.0} and fleet.mission_time >= 50.0
+        finally:
+            fleet.close()
+    finally:
+        stack.down()
+
+
+def test_a_boat_that_answers_but_cannot_reach_its_node_in_time_is_lost_held_and_the_other_goes_on(
+    tmp_path, monkeypatch
+):
+    """At resume each boat is sent to the node nearest its GPS fix; one that answers but does not
+    get there within ``backend.reset_timeout`` (here: its node is made 40+ m away, at 4x
+    real time) is lost with one sentence and told to HOLD, and the fleet goes on with the other."""
+    from guadal_cli.fleet.remote import RemoteFleet, SitlConfig
+    from guadal_cli.stack import Stack
+
+    mission = yaml.safe_load((ROOT / "missions" / "lake_greedy_sitl.yaml").read_text())
+    mission["map"] = str(ROOT / "maps" / "urban_lake.json")
+    mission["fleet"].update(vehicles=2, max_distance=60)
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump({**mission, "backend": {"level": "sim"}}))
+    prep = prepare(tmp_path / "m.yaml")
+    graph, start = prep.graph, [int(n) for n in prep.initial_nodes]
+    homes = [(float(graph.lat[n]), float(graph.lon[n])) for n in start]
+    far = max(range(graph.n_nodes), key=lambda n: graph.distance(n, start[0]))
+    assert graph.distance(far, start[0]) > 40.0  # 0.5 m/s for 3 s at 4x covers 6 m
+    nearest = graph.nearest_node
+    monkeypatch.setattr(  # boat 0's fix is taken to be nearest a node it cannot reach in time
+        graph, "nearest_node", lambda lat, lon: far if nearest(lat, lon) == start[0] else nearest(lat, lon)
+    )
+    stack = Stack.launch(map_path=mission["map"], vehicles=2, homes=homes, speedup=4.0, timeout=60)
+    try:
+        config = SitlConfig(**{**stack.planner_backend(), "connect_timeout": 10, "reset_timeout": 3})
+        fleet = RemoteFleet(graph, 2, 60.0, lambda v, node: float(node), config)
+        try:
+            fleet.restore({0: start[0], 1: start[1]}, {0: 5.0, 1: 6.0}, 10.0)
+            assert fleet.lost == {
+                0: f"vehicle 0 did not reach node {far} within 3 s when the run resumed; "
+                "the mission goes on without it."
+            }
+            assert fleet.positions[1] == start[1] and fleet.distances[1] == 6.0
+            wait_for(lambda: fleet.vehicle_status()[0]["mode"] == "HOLD", 10, "boat 0 told to HOLD")
+            # the other boat sails on: one hop to a neighbour, counted on top of its recorded distance
+            hop = min(graph.neighbors(start[1]), key=lambda n: graph.distance(n, start[1]))
+            reached = {}
+            while not reached.get(1):
+                reached, _ = fleet.move({1: hop})
+            assert fleet.positions[1] == hop and fleet.distances[1] > 6.0
         finally:
             fleet.close()
     finally:

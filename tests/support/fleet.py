@@ -113,6 +113,18 @@ def wait_for(predicate, timeout: float, what: str, interval: float = 0.05):
         time.sleep(interval)
 
 
+def describe_processes(pids: list[int]) -> str:
+    """``pid command line`` of each live process, for a failure message."""
+    out = []
+    for pid in pids:
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        out.append(f"{pid} {cmd.strip()}")
+    return "; ".join(out) or "none"
+
+
 def processes_marked(mark: str) -> list[int]:
     """Pids of live processes whose environment carries ``mark`` (children inherit it)."""
     found = []

@@ -185,6 +185,8 @@ class RemoteFleet(Fleet):
             def lose_the_late():
                 for v in sailing:
                     if v.goto.open and v.problem is None:
+                        # it answers: told to stop where it is, not left sailing on unaccounted for
+                        self._owner.issue(v, "hold")
                         self._owner.vehicle_done(
                             v,
                             f"vehicle {v.id} did not reach node {v.goto.node} within {timeout:g} s when the "
