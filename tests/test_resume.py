@@ -38,7 +38,15 @@ def run_in_process(mission_path, out):
 
 
 def resume_in_process(run_dir):
-    return MissionRunner(prepare_resume(run_dir), output=run_dir, resume=True).run()
+    """``guadal resume`` in this process, returning once its database writer is done too (a
+    process waits for it as it exits; here the next example reuses the directory at once)."""
+    runner = MissionRunner(prepare_resume(run_dir), output=run_dir, resume=True)
+    try:
+        return runner.run()
+    finally:
+        recorder = getattr(runner, "recorder", None)  # None: refused before the run began
+        for sink in recorder.sinks if recorder is not None else []:
+            sink.close()
 
 
 def killed_copy(full, out, step: int, torn: bytes = b"") -> None:

@@ -100,8 +100,14 @@ class DatabaseWriter(RecordSink):
         """First bring the database in line with the cut files (from the CSVs), then go on live.
 
         A spool left by the interrupted process is dropped: what it held that still counts is in
-        the CSVs, and its rows past the cut must not be replayed over the new ones.
+        the CSVs, and its rows past the cut must not be replayed over the new ones. A writer of the
+        same run still delivering in this process (an in-process caller resuming at once) is
+        waited for first, so none of its rows lands after the database is brought in line.
         """
+        resolved = str(Path(directory).resolve())
+        for other in list(_LIVE):  # an earlier attempt in this process may still be delivering
+            if other is not self and other._directory == resolved:
+                other.close()
         (Path(directory) / SPOOL_NAME).unlink(missing_ok=True)
         resume = _jsonable(manifest["resumes"][-1])
         self._start(directory, mission, {"op": "resync", "manifest": _jsonable(manifest), "resume": resume})
