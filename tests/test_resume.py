@@ -16,7 +16,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from support import ROOT, base_mission, run_cli, start_cli, wait_for_steps
+from support import ROOT, base_mission, run_cli, stop_after_steps
 from support.fuzz import examples
 
 from guadal_cli.errors import GuadalError
@@ -128,10 +128,7 @@ def test_a_real_process_stopped_mid_run_resumes_to_the_uninterrupted_result(how,
     )
     run_in_process(mission, tmp_path / "full")
     out = tmp_path / "stopped"
-    proc = start_cli("run", mission, "-o", out, "-q")
-    wait_for_steps(proc, out, 10, timeout=120)
-    proc.send_signal(how)
-    proc.communicate(timeout=60)
+    stop_after_steps(mission, out, 10, how, timeout=120)
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["status"] == ("running" if how == signal.SIGKILL else "interrupted")
     assert not (out / "fields.csv").exists() or how != signal.SIGKILL

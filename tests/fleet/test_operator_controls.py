@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import pytest
 import yaml
-from support import LAKE, base_mission, start_cli, wait_for_steps
+from support import LAKE, base_mission, start_cli, stop_after_steps
 from support.fleet import Inbox, login, wait_for
 
 from guadal_cli.channel import protocol as msg
@@ -45,6 +46,21 @@ def _events(run_dir) -> list[dict]:
         return []
 
 
+def _long_mission(stack, tmp_path) -> Path:
+    """A mission on ``stack`` long enough to be controlled mid-way; its file."""
+    mission = base_mission(backend={**stack.planner_backend(), "offline_grace": 20})
+    mission["fleet"].update(vehicles=N, max_distance=3000.0)
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(mission))
+    return path
+
+
+def _operator(stack) -> tuple[Inbox, msg.Codec]:
+    """The stack's operator on its broker, and the fleet key that signs controls."""
+    operator = Inbox(stack.broker_port, login=login(stack, "operator"))
+    return operator, msg.Codec(stack.secrets.key_file.read_text().strip().encode())
+
+
 def _control(operator, key, session: str, request_id: str, action: str, vehicle: int | None = None) -> None:
     """An operator's signed control on the fleet topic, for the planner session ``session``."""
     control = msg.topic("guadal", None, "control")
@@ -57,14 +73,9 @@ def _control(operator, key, session: str, request_id: str, action: str, vehicle:
 
 
 def test_signed_controls_on_the_topic_hold_a_boat_then_abort_the_mission(stack, tmp_path):
-    mission = base_mission(backend={**stack.planner_backend(), "offline_grace": 20})
-    mission["fleet"].update(vehicles=N, max_distance=3000.0)
-    path = tmp_path / "m.yaml"
-    path.write_text(yaml.safe_dump(mission))
-    run_dir = tmp_path / "run"
+    path, run_dir = _long_mission(stack, tmp_path), tmp_path / "run"
     proc = start_cli("run", path, "-o", run_dir, "-q")
-    operator = Inbox(stack.broker_port, login=login(stack, "operator"))
-    key = msg.Codec(stack.secrets.key_file.read_text().strip().encode())
+    operator, key = _operator(stack)
     status_topic = msg.topic("guadal", None, "status")
     try:
         operator.subscribe(status_topic)
@@ -105,13 +116,8 @@ def test_signed_controls_on_the_topic_hold_a_boat_then_abort_the_mission(stack, 
 def test_a_resumed_run_takes_controls_on_the_topic(stack, tmp_path):
     """After a kill -9 and ``guadal resume``, the resumed planner's session takes the operator's
     hold (the boat's bridge is told to HOLD) and abort, as a new run's would."""
-    mission = base_mission(backend={**stack.planner_backend(), "offline_grace": 20})
-    mission["fleet"].update(vehicles=N, max_distance=3000.0)
-    path = tmp_path / "m.yaml"
-    path.write_text(yaml.safe_dump(mission))
-    run_dir = tmp_path / "run"
-    operator = Inbox(stack.broker_port, login=login(stack, "operator"))
-    key = msg.Codec(stack.secrets.key_file.read_text().strip().encode())
+    path, run_dir = _long_mission(stack, tmp_path), tmp_path / "run"
+    operator, key = _operator(stack)
     status_topic = msg.topic("guadal", None, "status")
     boat_status = msg.topic("guadal", 1, "status")
     operator.subscribe(status_topic, boat_status)
@@ -120,11 +126,9 @@ def test_a_resumed_run_takes_controls_on_the_topic(stack, tmp_path):
         online = [json.loads(m.payload) for m in operator.on(status_topic)]
         return list(dict.fromkeys(s["session"] for s in online if s.get("state") == "online"))
 
-    proc = start_cli("run", path, "-o", run_dir, "-q")
+    proc = None
     try:
-        wait_for_steps(proc, run_dir, 4, timeout=60)  # four steps written
-        proc.kill()
-        proc.wait()
+        stop_after_steps(path, run_dir, 4, timeout=60)  # kill -9 once four steps are written
         killed_at = len(_rows(run_dir / "metrics.csv")) - 1
         proc = start_cli("resume", run_dir, "-q")
         wait_for(lambda: len(sessions()) == 2, 60, "the resumed planner's session")
@@ -141,7 +145,7 @@ def test_a_resumed_run_takes_controls_on_the_topic(stack, tmp_path):
         assert proc.wait(timeout=120) == 0, proc.stderr.read()
     finally:
         operator.close()
-        if proc.poll() is None:
+        if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait()
     manifest = json.loads((run_dir / "manifest.json").read_text())

@@ -13,7 +13,7 @@ import signal
 import uuid
 
 import yaml
-from support import ROOT, run_cli, start_cli, wait_for_steps
+from support import ROOT, run_cli, stop_after_steps
 from support.fleet import describe_processes, processes_marked, wait_for
 
 from guadal_cli.mission import prepare
@@ -38,12 +38,7 @@ def test_a_sitl_run_killed_mid_mission_resumes_to_the_sim_result(tmp_path, monke
     MissionRunner(prepare(tmp_path / "sim.yaml"), output=tmp_path / "run-sim").run()
 
     out = tmp_path / "run-sitl"
-    proc = start_cli("run", tmp_path / "sitl.yaml", "-o", out, "-q")
-    try:
-        wait_for_steps(proc, out, 5)
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.communicate(timeout=60)
+    stop_after_steps(tmp_path / "sitl.yaml", out, 5)
     killed_at = len(rows(out, "metrics.csv")) - 1
     assert json.loads((out / "manifest.json").read_text())["status"] == "running"
     # the killed run's own stack notices and goes down
@@ -90,12 +85,7 @@ def test_a_resumed_sitl_run_goes_on_with_the_boats_still_alive(tmp_path):
         mission["backend"] = {**stack.planner_backend(), "connect_timeout": 5}
         (tmp_path / "m.yaml").write_text(yaml.safe_dump(mission))
         out = tmp_path / "run"
-        proc = start_cli("run", tmp_path / "m.yaml", "-o", out, "-q")
-        try:
-            wait_for_steps(proc, out, 5)
-        finally:
-            proc.send_signal(signal.SIGKILL)
-            proc.communicate(timeout=60)
+        stop_after_steps(tmp_path / "m.yaml", out, 5)
         killed_at = len(rows(out, "metrics.csv")) - 1
         before = [r for r in rows(out, "measurements.csv") if int(r["step"]) <= killed_at]
         bridge = next(p for p in stack.processes if p.name == "bridge-1")

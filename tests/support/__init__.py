@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -58,6 +59,19 @@ def wait_for_steps(proc: subprocess.Popen, run_dir: Path, n: int, timeout: float
             pytest.fail(f"mission ended early: {proc.stderr.read()}")
         time.sleep(0.02)
     pytest.fail(f"the mission in {run_dir} wrote no more than {n} steps in {timeout} s")
+
+
+def stop_after_steps(
+    mission: Path, run_dir: Path, n: int, sig: int = signal.SIGKILL, timeout: float = 180
+) -> None:
+    """``guadal run MISSION`` in its own process, sent ``sig`` (default: ``kill -9``) once it has
+    written more than ``n`` steps to ``run_dir``, and reaped."""
+    proc = start_cli("run", mission, "-o", run_dir, "-q")
+    try:
+        wait_for_steps(proc, run_dir, n, timeout)
+    finally:
+        proc.send_signal(sig)
+        proc.communicate(timeout=60)
 
 
 def base_mission(**overrides) -> dict:
