@@ -317,9 +317,9 @@ def forget_replaced_rows(conn, run: RunRef, resume: dict) -> None:
     """
     after_step, kept = int(resume.get("after_step", -1)), resume.get("kept_rows")
     for name, model in ROW_TABLES.items():
-        stmt = delete(model).where(model.run_id == run.id)
         if name == "events":
             continue
+        stmt = delete(model).where(model.run_id == run.id)
         if name in ("metrics", "field_snapshots"):
             stmt = stmt.where(model.step > after_step)
         elif name != "fields" and kept is not None:
