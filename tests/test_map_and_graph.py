@@ -17,14 +17,19 @@ def l_lake() -> Map:
     return Map(mask=mask, cell_size_m=5.0, reference={"row": 0, "col": 0, "lat": 37.0, "lon": -6.0})
 
 
-def test_eight_connected_with_metric_lengths():
-    g = NavGraph(
+def _open_water_3x3() -> NavGraph:
+    """Nine water cells of 5 m, the centre at the reference."""
+    return NavGraph(
         Map(
             mask=np.ones((3, 3), bool),
             cell_size_m=5.0,
             reference={"row": 1, "col": 1, "lat": 37.0, "lon": -6.0},
         )
     )
+
+
+def test_eight_connected_with_metric_lengths():
+    g = _open_water_3x3()
     centre = g.node_at(1, 1)
     assert len(g.neighbors(centre)) == 8
     assert g.edge_length(centre, g.node_at(0, 1)) == pytest.approx(5.0)
@@ -34,13 +39,7 @@ def test_eight_connected_with_metric_lengths():
 
 
 def test_hops_within_a_budget_and_the_cheapest_hop():
-    g = NavGraph(
-        Map(
-            mask=np.ones((3, 3), bool),
-            cell_size_m=5.0,
-            reference={"row": 1, "col": 1, "lat": 37.0, "lon": -6.0},
-        )
-    )
+    g = _open_water_3x3()
     centre, corner = g.node_at(1, 1), g.node_at(0, 0)
     straight = [n for n in g.neighbors(centre) if g.edge_length(centre, n) < 6.0]
     assert g.neighbours_within(centre, 7.0) == straight and len(straight) == 4  # diagonals cost 7.07 m
