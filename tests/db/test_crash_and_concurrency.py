@@ -67,7 +67,7 @@ def _steps_in_database(db_url: str) -> int:
 def _killed_after_five_steps(folder: Path, name: str, db_url: str) -> Path:
     """A slow sim mission, ``kill -9``-ed once the database has five of its steps; its run directory."""
     proc, out = start_run(
-        base_mission(algorithm={"type": "slow_planner:SlowGreedy", "delay_s": 0.05}), folder, name, db_url
+        base_mission(algorithm={"type": "slow_planner:SlowGreedy", "delay_s": 0.2}), folder, name, db_url
     )
     deadline = time.monotonic() + 300
     while _steps_in_database(db_url) < 5:
