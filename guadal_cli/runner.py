@@ -59,6 +59,54 @@ def default_run_dir(prep: Prepared) -> Path:
     return candidate
 
 
+class _StopSignals:
+    """SIGTERM stops a run exactly as Ctrl-C does, and neither may land before the loop's ``try``.
+
+    A stop that came between the run directory's first byte (a manifest saying ``running``) and
+    the ``try`` that records interruptions would leave that run ``running`` for good. So both
+    signals are held back while the directory is made (:meth:`hold`) and raised as
+    ``KeyboardInterrupt`` once inside the ``try`` (:meth:`release`). Off the main thread signals
+    cannot be handled, and nothing is changed.
+    """
+
+    def __init__(self):
+        self._held = False
+        self._pending = False
+        self._previous: dict = {}
+
+    def _on_signal(self, signum, frame):
+        if self._held:
+            self._pending = True
+            return
+        raise KeyboardInterrupt
+
+    def hold(self) -> None:
+        try:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._on_signal)
+        except ValueError:  # not the main thread
+            return
+        self._held = True
+
+    def release(self) -> None:
+        """From here on SIGTERM raises ``KeyboardInterrupt``, Ctrl-C as before; one held back
+        raises now."""
+        if not self._held:
+            return
+        self._held = False
+        signal.signal(signal.SIGINT, self._previous[signal.SIGINT])
+        if self._pending:
+            self._pending = False
+            raise KeyboardInterrupt
+
+    def restore(self) -> None:
+        """The process's own handlers back (a stop still held back is dropped with them)."""
+        self._held = False
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
+
+
 class MissionRunner:
     """Composes the plugins of a prepared mission and runs it into a run directory."""
 
@@ -185,24 +233,22 @@ class MissionRunner:
         prep = self.prep
         columns = metric_columns(self.n, self.environment.metric_names)
         sinks = [DatabaseWriter(self.database)] if self.database else []
-        if self.resume:  # the database is brought back in line with the cut files, then goes on live
-            self.recorder = RunRecorder.reopen(self.output, columns, sinks=sinks)
-        else:
-            self.recorder = RunRecorder(
-                self.output, prep.resolved_dict(), self._manifest(), columns, sinks=sinks
-            )
-        previous_term = signal.getsignal(signal.SIGTERM)
-
-        def _on_term(signum, frame):
-            raise KeyboardInterrupt  # SIGTERM stops a run exactly as Ctrl-C does
-
+        stops = _StopSignals()
+        stops.hold()
         try:
-            signal.signal(signal.SIGTERM, _on_term)
-        except ValueError:  # not the main thread
-            previous_term = None
+            if self.resume:  # the database is brought back in line with the cut files, then goes on live
+                self.recorder = RunRecorder.reopen(self.output, columns, sinks=sinks)
+            else:
+                self.recorder = RunRecorder(
+                    self.output, prep.resolved_dict(), self._manifest(), columns, sinks=sinks
+                )
+        except BaseException:
+            stops.restore()
+            raise
         fleet = None
         status, error = "failed", None
         try:
+            stops.release()  # a stop held back meanwhile lands here, and is recorded
             fleet = self.backend.make_fleet(
                 graph=self.graph, fleet_config=self.mission.fleet, sensor=self.environment.sense, mission=prep
             )
@@ -258,8 +304,7 @@ class MissionRunner:
                     "model": self.environment.model_description(),
                 },
             )
-            if previous_term is not None:
-                signal.signal(signal.SIGTERM, previous_term)
+            stops.restore()
         return RunResult(self.output, status, self.step, self.last_metrics)
 
     def _control_inboxes(self, fleet: Fleet) -> list:

@@ -143,6 +143,29 @@ def test_a_real_process_stopped_mid_run_resumes_to_the_uninterrupted_result(how,
     )
 
 
+def test_a_terminate_signal_while_the_run_directory_is_made_is_recorded(tmp_path, write_mission, monkeypatch):
+    """The signal lands in the moment after the directory's manifest says "running" and before
+    the mission loop: the run must still end "interrupted", not stay "running" for good."""
+    import os
+
+    from guadal_cli import runner
+
+    class SignalledRecorder(runner.RunRecorder):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(runner, "RunRecorder", SignalledRecorder)
+    previous = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt):
+        run_in_process(write_mission(base_mission()), tmp_path / "r")
+    manifest = json.loads((tmp_path / "r" / "manifest.json").read_text())
+    assert manifest["status"] == "interrupted" and manifest["ended_at"]
+    assert "terminate" in manifest["error"]
+    # the process's own handlers are back
+    assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == previous
+
+
 CRASHING_PLANNER = """
 import os
 from guadal_cli.planners.greedy import GreedyStd
