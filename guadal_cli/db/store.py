@@ -299,10 +299,12 @@ def save_batches(
         conn.execute(
             update(Run).where(Run.id == run.id).values(field_columns=list(columns[len(FIELD_KEYS) :]))
         )
-    if table == "metrics":
+    now = _dt.datetime.now(_dt.timezone.utc).replace(tzinfo=None)
+    if table == "metrics":  # the list's stream resends on updated_at
         last = max(d["step"] for d in dicts)
-        now = _dt.datetime.now(_dt.timezone.utc).replace(tzinfo=None)  # the list's stream resends on it
         conn.execute(update(Run).where(Run.id == run.id, Run.steps < last).values(steps=last, updated_at=now))
+    elif table == "vehicles":  # the boats were last heard now: a console opened later counts from here
+        conn.execute(update(Run).where(Run.id == run.id).values(updated_at=now))
 
 
 def forget_replaced_rows(conn, run: RunRef, resume: dict) -> None:

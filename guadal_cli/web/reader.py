@@ -7,6 +7,7 @@ what is newer, a few times a second. Calls block: the server runs them in a work
 
 from __future__ import annotations
 
+import datetime as _dt
 import math
 from dataclasses import dataclass, fields
 from functools import lru_cache
@@ -71,6 +72,14 @@ SUMMARY_KEYS = (
     "stop_reason",
     "error",
 )
+
+
+def _seconds_since(stamp: str | None) -> float:
+    """Seconds from a stored (naive UTC) ISO time to now; 0 for none, or one in the future."""
+    if not stamp:
+        return 0.0
+    then = _dt.datetime.fromisoformat(stamp).replace(tzinfo=_dt.timezone.utc)
+    return max(0.0, (_dt.datetime.now(_dt.timezone.utc) - then).total_seconds())
 
 
 def run_summary(run: dict) -> dict:
@@ -225,6 +234,9 @@ class ConsoleReader:
                 for r in queries.vehicle_status(self.engine, run_id, cursor.vehicles)
                 if r["id"] <= new.vehicles
             ]
+            # how long ago the newest of them reached the database, by this server's clock: a page
+            # opened long after the boats went quiet must not show their last link age as fresh
+            out["vehicles_age_s"] = _seconds_since(ids["runs_updated_at"])
         if new.targets > cursor.targets:
             out["targets"] = [
                 {k: r[k] for k in ("step", "vehicle", "node", "lat", "lon", "time_s")}

@@ -304,6 +304,10 @@ def test_a_boats_link_age_keeps_growing_on_screen_when_its_reports_stop(
         first = _link_age(driver, 0)
         time.sleep(3)
         assert _link_age(driver, 0) >= first + 2
+        # a page opened now counts from when the boat was last heard, not from its own load
+        driver.get(f"{console.url}/runs/{run_id}")
+        wait_for(lambda: _link_age(driver, 0) is not None, timeout=30, what="boat 0's link age, again")
+        assert _link_age(driver, 0) >= first + 2.5
     finally:
         os.kill(proc.pid, signal.SIGCONT)
         proc.terminate()

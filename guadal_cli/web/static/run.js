@@ -161,9 +161,9 @@ function drawMap() {
 }
 
 // --- side panels ---------------------------------------------------------------------------
-// A boat's link age as reported, plus the time since this page heard that report while the
+// A boat's link age as reported, plus the time since that report reached the database while the
 // run goes on live: when rows stop coming (a dead link, a stalled mission) the age keeps growing
-// on screen instead of freezing at the last, healthy-looking value.
+// on screen instead of freezing at the last, healthy-looking value, on a page opened later too.
 function linkAge(b) {
   if (b.link_age_s === null) return "—";
   const live = state.view >= state.maxStep && state.info.run.status === "running" && b.heard !== null;
@@ -283,8 +283,10 @@ function apply(update) {
   state.track.push(...(update.track || []));
   state.samples.push(...(update.measurements || []));
   state.events.push(...(update.events || []));
-  const now = performance.now();
-  for (const r of update.vehicles || []) r.heard = now; // the link's age counts up from here
+  // the link's age counts up from when the newest row reached the database (the server says how
+  // long ago): on a page opened after the boats went quiet, from then, not from the page's load
+  const heard = performance.now() - 1000 * (update.vehicles_age_s || 0);
+  for (const r of update.vehicles || []) r.heard = heard;
   state.status.push(...(update.vehicles || []));
   state.targets.push(...(update.targets || []));
   state.fields.push(...(update.fields || []));
