@@ -14,6 +14,10 @@ Episode's rules (its step less the model update: hops, conflicts, budgets, cover
 observation building (images and action masks, guadal_cli.rl.observation), the policy, the
 metrics the reward is computed from, and the rest: the environment's own translation.
 
+The env is also played with ``credit="difference"`` (each boat paid what its own samples added:
+the world copied before every step and the step's updates replayed without each boat's samples),
+unsplit, to give that credit's cost against the team credit's.
+
 Times are CPU seconds of this process with one BLAS thread (threadpoolctl), the median of
 ``--repeat`` interleaved runs: on a shared machine wall time measures the neighbours.
 
@@ -84,15 +88,17 @@ def mission(seed: int) -> dict:
     return data
 
 
-def run_env(seed: int):
-    env = MissionParallelEnv(mission(seed), base_dir=ROOT / "missions")
+def run_env(seed: int, credit: str = "team"):
+    env = MissionParallelEnv(mission(seed), base_dir=ROOT / "missions", credit=credit)
     clock = Clock()
-    gp = env.episode.environment
-    gp.update = clock.wrap("model update", gp.update)
-    env.builder.images = clock.wrap("observations", env.builder.images)
-    env.builder.action_masks = clock.wrap("observations", env.builder.action_masks)
-    gp.metrics = clock.wrap("metrics for the reward", gp.metrics)
-    env.episode.step = clock.wrap("episode step", env.episode.step)
+    if credit == "team":  # (difference credit copies the environment: its wrapped methods would
+        # go on calling the original's, so that run is timed whole)
+        gp = env.episode.environment
+        gp.update = clock.wrap("model update", gp.update)
+        env.builder.images = clock.wrap("observations", env.builder.images)
+        env.builder.action_masks = clock.wrap("observations", env.builder.action_masks)
+        gp.metrics = clock.wrap("metrics for the reward", gp.metrics)
+        env.episode.step = clock.wrap("episode step", env.episode.step)
     policy = clock.wrap("policy", std_ahead)
     t0 = time.process_time()
     obs, infos = env.reset(seed=seed)
@@ -138,13 +144,16 @@ def main() -> None:
     )
     load = os.getloadavg()
     run_env(args.seed), run_runner(args.seed)  # warm-up: imports, caches, kernels
-    env_times, runner_times, parts = [], [], []
+    env_times, runner_times, difference_times, parts = [], [], [], []
     for _ in range(args.repeat):
         env_total, agent_steps, decisions, spent, env_path = run_env(args.seed)
         runner_total, runner_steps, runner_path = run_runner(args.seed)
+        difference_total, _, _, _, difference_path = run_env(args.seed, credit="difference")
         env_times.append(env_total)
         runner_times.append(runner_total)
+        difference_times.append(difference_total)
         parts.append(spent)
+    assert difference_path == env_path  # the credit changes the rewards, not the episode
     same = env_path == runner_path[: len(env_path)] and len(runner_path) == len(env_path)
     env_s, runner_s = statistics.median(env_times), statistics.median(runner_times)
     labels = ("model update", "episode step", "observations", "policy", "metrics for the reward")
@@ -168,7 +177,15 @@ def main() -> None:
         f"| guadal run (MissionRunner, CSVs) | {runner_steps} | {agent_steps} | {runner_s:.3f} | "
         f"{agent_steps / runner_s:,.0f} | {1e6 * runner_s / runner_steps:,.0f} |"
     )
-    print(f"\nenv / runner speed: {runner_s / env_s:.2f}x; same trajectory: {'yes' if same else 'no'}\n")
+    difference_s = statistics.median(difference_times)
+    print(
+        f"| MissionParallelEnv, credit=difference | {decisions} | {agent_steps} | {difference_s:.3f} | "
+        f"{agent_steps / difference_s:,.0f} | {1e6 * difference_s / decisions:,.0f} |"
+    )
+    print(
+        f"\nenv / runner speed: {runner_s / env_s:.2f}x; same trajectory: {'yes' if same else 'no'}; "
+        f"difference credit costs {difference_s / env_s:.2f}x the team credit's time\n"
+    )
     print("| part of an env step | µs per decision | share |")
     print("|---|---|---|")
     for k, v in split.items():

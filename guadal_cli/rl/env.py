@@ -8,14 +8,16 @@ as in ``guadal run``; these classes only translate. Observations and actions are
 - :class:`MissionParallelEnv` (PettingZoo ``ParallelEnv``): one agent per vehicle,
   ``boat_0`` ... Every live agent acts at every step; an agent whose vehicle cannot move any
   more (budget spent) terminates and leaves ``agents``; the episode ends for all when the
-  Episode stops. All agents share the fleet's reward (the team's progress this step).
+  Episode stops. With ``credit="team"`` (default) all agents share the fleet's reward (the
+  team's progress this step); with ``credit="difference"`` each gets its difference reward: the
+  fleet's reward less what it would have been without that agent's samples of the step.
 - :class:`MissionEnv` (Gymnasium, ``gymnasium.make("guadal/Mission-v0", mission=...)``): the
   whole fleet as one agent, a ``MultiDiscrete`` action (one entry per vehicle).
 
 **Invalid actions never raise.** The valid actions are in ``info["action_mask"]`` (and in the
 observation with ``layout="dict"``); a vehicle given an invalid one (off the water, beyond its
 budget, out of range, or refused by the Episode's rules) stays where it is and its agent gets
-``-invalid_penalty`` on top of the shared reward.
+``-invalid_penalty`` on top of its reward.
 
 **Seeds.** ``reset(seed=s)`` runs the mission with seed ``s`` (its ground truth and sensor
 noise): the same seed gives the same observations and rewards. ``reset()`` without a seed
@@ -25,6 +27,7 @@ different worlds, reproducibly.
 
 from __future__ import annotations
 
+import copy
 import functools
 from pathlib import Path
 
@@ -45,6 +48,8 @@ except ImportError as exc:  # pragma: no cover - the rl extra is part of the tes
 
 #: vehicle v is agent "boat_v"
 AGENT_PREFIX = "boat_"
+#: how the fleet's reward is shared out (``credit=``): see :class:`MissionParallelEnv`
+CREDITS = ("team", "difference")
 
 
 def _prepared(mission, base_dir):
@@ -70,6 +75,13 @@ class MissionParallelEnv(ParallelEnv):
     or ``dict`` (``{"observation": image, "action_mask": int8}``). ``reward``: a name from
     :data:`~guadal_cli.rl.rewards.REWARDS`, a function ``(before, after) -> float`` of the metric
     dicts, or None for the environment's default. ``fields``: the two model fields shown.
+
+    ``credit``: ``team`` gives every agent the fleet's reward. ``difference`` gives each its
+    difference reward, ``R(all samples) - R(all but its own)`` over the step: the world is copied
+    before the step and the step's model updates replayed on the copy without the agent's
+    samples, so an agent is paid for what it added, not for its teammates' work (an agent that
+    took no sample gets 0). It costs a copy of the environment and a replayed update per
+    sampling agent per step.
     """
 
     metadata = {
@@ -88,11 +100,14 @@ class MissionParallelEnv(ParallelEnv):
         reward=None,
         reward_scale: float = 1.0,
         invalid_penalty: float = 0.01,
+        credit: str = "team",
         fields: tuple[str, str] | None = None,
         render_mode: str | None = None,
     ):
         from ..episode import Episode
 
+        if credit not in CREDITS:
+            raise GuadalError(f"credit must be one of {', '.join(CREDITS)}, not '{credit}'.", field="credit")
         if layout not in LAYOUTS:
             raise GuadalError(f"layout must be one of {', '.join(LAYOUTS)}, not '{layout}'.", field="layout")
         if render_mode not in (None, "rgb_array"):
@@ -117,6 +132,7 @@ class MissionParallelEnv(ParallelEnv):
         )
         self.layout = layout
         self.invalid_penalty = float(invalid_penalty)
+        self.credit = credit
         self.render_mode = render_mode
         self.possible_agents = [f"{AGENT_PREFIX}{v}" for v in range(self.n_vehicles)]
         self.agents: list[str] = []
@@ -161,21 +177,37 @@ class MissionParallelEnv(ParallelEnv):
         chosen = {self.vehicle(a): _as_action(actions[a]) for a in live}
         masks = np.stack([self._masks[v] for v in chosen]) if chosen else None
         targets, invalid = self.builder.targets(obs, chosen, masks)
-        obs, _, terminated, truncated, info = self.episode.step(targets)
+        log = _EnvironmentLog(self.episode) if self.credit == "difference" else None
+        try:
+            obs, measured, terminated, truncated, info = self.episode.step(targets)
+        finally:
+            if log is not None:
+                log.detach()
         # the Episode's refusals (under None: the whole decision), though the env sends only valid ones
         invalid.update({v: why for v, why in info.get("invalid", {}).items() if v is not None})
         self._observation = obs
         metrics = self.episode.environment.metrics()
         shared = self.reward_fn(self._metrics, metrics)
+        own = {}
+        if log is not None:
+            sampled = {m.vehicle for m in measured}
+            for a in self.agents:
+                v = self.vehicle(a)
+                without = log.replay_without(v) if v in sampled else metrics
+                own[v] = shared - self.reward_fn(self._metrics, without)
         self._metrics = metrics
         self.last_reward, self.last_invalid = shared, invalid  # the fleet's, before penalties
         rewards = {
-            a: shared - (self.invalid_penalty if self.vehicle(a) in invalid else 0.0) for a in self.agents
+            a: own.get(self.vehicle(a), shared)
+            - (self.invalid_penalty if self.vehicle(a) in invalid else 0.0)
+            for a in self.agents
         }
         terminations = {a: bool(terminated or obs.done.get(self.vehicle(a))) for a in self.agents}
         truncations = {a: bool(truncated) for a in self.agents}
         self._masks = self._masks_of(self.agents)
         infos = self._infos(self.agents, info, invalid)
+        for a in self.agents:
+            infos[a]["team_reward"] = shared
         observations = self._observe(self.agents)
         self.agents = [a for a in self.agents if not (terminations[a] or truncations[a])]
         return observations, rewards, terminations, truncations, infos
@@ -226,6 +258,51 @@ class MissionParallelEnv(ParallelEnv):
 
     def close(self) -> None:
         self.episode.close()
+
+
+class _EnvironmentLog:
+    """One step of an Episode's environment, copied before and its calls kept, for difference
+    rewards: the step replayed on a fresh copy of the world without one vehicle's samples.
+
+    The Episode drives ``advance`` (an evolving world's clock) and ``update`` (samples into the
+    model); both are recorded in order and passed on. Sensing is not replayed: the other
+    vehicles' samples keep their values. The graph is shared, not copied (it never changes).
+    """
+
+    def __init__(self, episode):
+        self._episode = episode
+        self.environment = episode.environment
+        self._before = self._copy(self.environment)
+        self.calls: list[tuple[str, object]] = []
+        episode.environment = self
+
+    def _copy(self, environment):
+        return copy.deepcopy(environment, {id(environment.graph): environment.graph})
+
+    def advance(self, time_s: float) -> None:
+        self.calls.append(("advance", time_s))
+        self.environment.advance(time_s)
+
+    def update(self, measurements) -> None:
+        measurements = list(measurements)
+        self.calls.append(("update", measurements))
+        self.environment.update(measurements)
+
+    def __getattr__(self, name):  # everything else is the environment's own
+        return getattr(self.environment, name)
+
+    def detach(self) -> None:
+        self._episode.environment = self.environment
+
+    def replay_without(self, vehicle: int) -> dict:
+        """The metrics the step would have ended with had ``vehicle`` taken no sample."""
+        world = self._copy(self._before)
+        for name, argument in self.calls:
+            if name == "advance":
+                world.advance(argument)
+            else:
+                world.update([m for m in argument if m.vehicle != vehicle])
+        return world.metrics()
 
 
 def _as_action(value) -> int:

@@ -111,6 +111,62 @@ def test_invalid_actions_never_raise_the_boat_stays_and_pays():
         assert "invalid" in infos[a] and rewards[a] == pytest.approx(-0.5)
 
 
+def _independent_moves(env, infos, rng) -> dict:
+    """Random valid moves, each boat to a node no boat stands on or is sent to: then no boat's
+    move depends on another's, and staying instead changes nothing but its own samples."""
+    positions = env.episode.fleet.positions
+    for _ in range(500):
+        actions = {a: int(rng.choice(np.flatnonzero(infos[a]["action_mask"][1:]) + 1)) for a in env.agents}
+        nodes = [int(env.builder.action_nodes[positions[env.vehicle(a)], act]) for a, act in actions.items()]
+        if len(set(nodes)) == len(nodes) and not set(nodes) & set(positions.values()):
+            return actions
+    raise AssertionError("no independent moves found")
+
+
+@pytest.mark.parametrize("seed", [4, 9])
+def test_difference_credit_pays_each_boat_what_its_own_samples_added(seed):
+    """Checked against the world where that boat stayed instead (no sensor noise, a static
+    field, moves that cannot interfere): there, the fleet's reward is the counterfactual."""
+    mission = small()
+    mission["fleet"]["max_distance"] = 200.0
+    rng = np.random.default_rng(seed)
+    env = MissionParallelEnv(mission, credit="difference")
+    _, infos = env.reset(seed=seed)
+    history, paid = [], 0
+    for _ in range(5):
+        actions = _independent_moves(env, infos, rng)
+        _, rewards, _, _, infos = env.step(actions)
+        for agent in actions:
+            stayed = MissionParallelEnv(mission)  # team credit: every boat gets the fleet's reward
+            stayed.reset(seed=seed)
+            for earlier in history:
+                stayed.step(earlier)
+            _, without, *_ = stayed.step({**actions, agent: COMPASS.index("stay")})
+            team = infos[agent]["team_reward"]
+            assert rewards[agent] == pytest.approx(team - without[agent], abs=1e-12)
+            assert rewards[agent] < team  # its teammates' samples are not its own
+            paid += rewards[agent] > 0
+        history.append(actions)
+    assert paid >= 10  # a new sample of an uncertain field is worth something
+    # a boat that takes no sample adds nothing, whatever the others do
+    actions = {**_independent_moves(env, infos, rng), "boat_1": COMPASS.index("stay")}
+    _, rewards, _, _, infos = env.step(actions)
+    assert rewards["boat_1"] == 0.0 and infos["boat_1"]["team_reward"] > 0
+
+
+@pytest.mark.parametrize("environment", ["trash", "oil_spill"])
+def test_difference_credit_passes_pettingzoo_s_api_and_seed_tests_on_evolving_worlds(environment):
+    mission = small(environment={"type": environment}, algorithm={"type": "random"})
+    parallel_api_test(MissionParallelEnv(mission, credit="difference"), num_cycles=50)
+    parallel_seed_test(lambda: MissionParallelEnv(mission, credit="difference"), num_cycles=20)
+
+
+def test_an_unknown_credit_is_one_sentence():
+    with pytest.raises(GuadalError) as info:
+        MissionParallelEnv(small(), credit="individual")
+    assert "credit must be one of team, difference" in str(info.value) and "\n" not in str(info.value)
+
+
 @pytest.mark.parametrize("reward", ["iou", "nonsense"])
 def test_a_reward_the_environment_cannot_give_is_one_sentence(reward):
     with pytest.raises(GuadalError) as info:
