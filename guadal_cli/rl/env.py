@@ -344,6 +344,13 @@ class MissionEnv(gymnasium.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
 
     def __init__(self, mission, render_mode: str | None = None, **kwargs):
+        if kwargs.get("credit", "team") != "team":
+            raise GuadalError(
+                "credit shares the reward out among PettingZoo's agents; the Gymnasium env has one "
+                "agent, the fleet, and its reward is the fleet's: leave credit out or use "
+                "MissionParallelEnv.",
+                field="credit",
+            )
         self.parallel = MissionParallelEnv(mission, render_mode=render_mode, **kwargs)
         p = self.parallel
         self.render_mode = render_mode

@@ -165,6 +165,9 @@ def test_an_unknown_credit_is_one_sentence():
     with pytest.raises(GuadalError) as info:
         MissionParallelEnv(small(), credit="individual")
     assert "credit must be one of team, difference" in str(info.value) and "\n" not in str(info.value)
+    with pytest.raises(GuadalError) as info:  # one agent: nothing to share out, not silently ignored
+        gymnasium.make("guadal/Mission-v0", mission=small(), credit="difference")
+    assert "one agent, the fleet" in str(info.value) and "\n" not in str(info.value)
 
 
 @pytest.mark.parametrize("reward", ["iou", "nonsense"])
