@@ -27,9 +27,10 @@ from urllib.parse import parse_qs, quote
 
 import anyio
 from starlette.applications import Starlette
+from starlette.exceptions import HTTPException
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
-from starlette.requests import Request
+from starlette.requests import ClientDisconnect, Request
 from starlette.responses import FileResponse, JSONResponse, RedirectResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
@@ -45,10 +46,61 @@ STATIC = resources.files("guadal_cli.web") / "static"
 POLL_S = 0.2
 #: a comment line this often keeps proxies and the browser from dropping an idle stream
 KEEPALIVE_S = 15.0
+#: the most a request body may hold: a control is ~40 bytes, the login form ~200
+MAX_BODY = 16 * 1024
+#: run ids are the database's 64-bit row ids
+MAX_RUN_ID = 2**63 - 1
 
 
 def _error(status: int, sentence: str) -> JSONResponse:
     return JSONResponse({"error": sentence}, status_code=status)
+
+
+class Refused(Exception):
+    """A request refused in one sentence, from wherever it is found wrong."""
+
+    def __init__(self, status: int, sentence: str):
+        super().__init__(sentence)
+        self.status, self.sentence = status, sentence
+
+
+async def _body(request: Request) -> bytes:
+    """The request's body, read no further than ``MAX_BODY`` bytes."""
+    too_big = Refused(413, f"the request body is larger than {MAX_BODY} bytes, the most this console reads.")
+    declared = request.headers.get("content-length", "")
+    if declared.isdigit() and int(declared) > MAX_BODY:
+        raise too_big
+    chunks, size = [], 0
+    try:
+        async for chunk in request.stream():
+            size += len(chunk)
+            if size > MAX_BODY:
+                raise too_big
+            chunks.append(chunk)
+    except ClientDisconnect:
+        raise Refused(
+            400, "the request body ended before its declared length (the client went away)."
+        ) from None
+    return b"".join(chunks)
+
+
+def _refuse_cross_site(request: Request) -> None:
+    """Requests that change something come from the console's own pages (or no browser at all).
+
+    Browsers say where a request comes from in ``Sec-Fetch-Site``; another site, or another port
+    of the same host (``same-site``), may not log in, log out or steer a boat with the operator's
+    cookie. Clients that are not browsers send no such header and authenticate by secret.
+    """
+    site = request.headers.get("sec-fetch-site", "same-origin")
+    if site not in ("same-origin", "none"):
+        raise Refused(403, f"a {site} request may not change anything here; use the console's own pages.")
+
+
+def _run_id(request: Request) -> int:
+    run_id = request.path_params["run_id"]
+    if not 0 < run_id <= MAX_RUN_ID:
+        raise Refused(404, f"there is no run {run_id} in this database.")
+    return run_id
 
 
 def _sse(event: str, data, event_id: str | None = None) -> bytes:
@@ -84,8 +136,9 @@ def create_app(
         return FileResponse(str(STATIC / "login.html"), headers={"Cache-Control": "no-store"})
 
     async def login(request: Request) -> Response:
+        _refuse_cross_site(request)
         # the form is urlencoded: parsed here rather than adding a multipart parser for two fields
-        form = parse_qs((await request.body()).decode("utf-8", "replace"))
+        form = parse_qs((await _body(request)).decode("utf-8", "replace"))
         secret = (form.get("secret") or [""])[0]
         target = (form.get("next") or ["/"])[0]
         if not target.startswith("/") or target.startswith("//"):
@@ -101,6 +154,7 @@ def create_app(
         return response
 
     async def logout(request: Request) -> Response:
+        _refuse_cross_site(request)
         access.logout(request.cookies.get(SESSION_COOKIE))
         response = RedirectResponse("/", status_code=303)
         response.delete_cookie(SESSION_COOKIE, path="/")
@@ -116,6 +170,10 @@ def create_app(
     async def runs(request: Request) -> Response:
         if not may_view(request):
             return _error(401, "log in to view this console.")
+        keys = [key for key, _ in request.query_params.multi_items()]
+        twice = next((key for key in keys if keys.count(key) > 1), None)
+        if twice is not None:
+            return _error(400, f"filter '{twice}' is given more than once; give each filter once.")
         try:
             found = await anyio.to_thread.run_sync(reader.runs, dict(request.query_params))
         except GuadalError as exc:
@@ -146,7 +204,7 @@ def create_app(
     async def run_info(request: Request) -> Response:
         if not may_view(request):
             return _error(401, "log in to view this console.")
-        run_id = request.path_params["run_id"]
+        run_id = _run_id(request)
         try:
             info = await anyio.to_thread.run_sync(reader.run, run_id)
         except LookupError:
@@ -168,7 +226,7 @@ def create_app(
     async def run_stream(request: Request) -> Response:
         if not may_view(request):
             return _error(401, "log in to view this console.")
-        run_id = request.path_params["run_id"]
+        run_id = _run_id(request)
         cursor = Cursor.parse(request.headers.get("last-event-id"))
         try:
             first, cursor = await anyio.to_thread.run_sync(reader.changes, run_id, cursor)
@@ -195,7 +253,7 @@ def create_app(
     async def download(request: Request) -> Response:
         if not may_view(request):
             return _error(401, "log in to view this console.")
-        run_id, kind = request.path_params["run_id"], request.path_params["kind"]
+        run_id, kind = _run_id(request), request.path_params["kind"]
         if kind not in DOWNLOADS:
             return _error(404, f"no download '{kind}'; downloads are {', '.join(DOWNLOADS)}.")
         from .downloads import build_download
@@ -216,10 +274,16 @@ def create_app(
             return _error(401, "operator controls need a login.")
         if not controls:
             return _error(403, "this console was started without --control; it only shows missions.")
-        run_id = request.path_params["run_id"]
+        _refuse_cross_site(request)
+        run_id = _run_id(request)
+        kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
+        if kind != "application/json":
+            return _error(
+                415, 'the control request must be sent as application/json, like {"action": "pause"}.'
+            )
         try:
-            body = await request.json()
-        except (json.JSONDecodeError, UnicodeDecodeError):
+            body = json.loads(await _body(request))
+        except (ValueError, RecursionError):  # not JSON, not UTF-8, numbers past 4300 digits, nesting
             return _error(400, 'the control request must be JSON like {"action": "pause"}.')
         origin = request.client.host if request.client else None
         try:
@@ -251,12 +315,29 @@ def create_app(
         Mount("/static", StaticFiles(directory=str(STATIC)), name="static"),
     ]
 
+    async def refused(request: Request, exc: Refused) -> Response:
+        return _error(exc.status, exc.sentence)
+
+    async def http_error(request: Request, exc: HTTPException) -> Response:
+        """The router's own refusals (no such route, wrong method), as sentences like the rest."""
+        if exc.status_code == 405:
+            allowed = (exc.headers or {}).get("Allow", "GET")
+            sentence = f"{request.method} is not allowed on {request.url.path}; it takes {allowed}."
+            return JSONResponse({"error": sentence}, status_code=405, headers={"Allow": allowed})
+        if exc.status_code == 404:
+            return _error(404, f"there is nothing at {request.url.path}; the missions are listed at /.")
+        return _error(exc.status_code, f"the request was refused ({exc.detail}).")
+
     async def unexpected(request: Request, exc: Exception) -> Response:
         log.error("%s %s failed: %s: %s", request.method, request.url.path, type(exc).__name__, exc)
         return _error(500, f"the console could not answer ({type(exc).__name__}); see its log.")
 
     middleware = [Middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts)] if allowed_hosts else []
-    return Starlette(routes=routes, middleware=middleware, exception_handlers={Exception: unexpected})
+    return Starlette(
+        routes=routes,
+        middleware=middleware,
+        exception_handlers={Refused: refused, HTTPException: http_error, Exception: unexpected},
+    )
 
 
 _STREAM_HEADERS = {"Cache-Control": "no-store", "X-Accel-Buffering": "no"}

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import json
+import urllib.error
+import urllib.request
+
 import pytest
 from console_support import SECRET, Console
 from support import run_cli
@@ -109,3 +113,68 @@ def test_beyond_loopback_every_page_and_call_needs_the_login(tmp_path):
     finally:
         output = console.stop()
     assert SECRET not in output
+
+
+def test_malformed_requests_get_one_sentence_and_the_console_keeps_its_footing(tmp_path):
+    """Each of these once got a 500 and a traceback in the log, or was silently accepted."""
+    import socket
+    from urllib.parse import urlsplit
+
+    console = Console(f"sqlite:///{tmp_path / 'g.db'}", "--control", env={TOKEN_ENV: SECRET})
+    control = "/api/runs/1/control"
+    try:
+        cases = [
+            (("/api/runs/9223372036854775808",), 404, "there is no run 9223372036854775808"),
+            ((control.replace("1", "9" * 30), {"action": "pause"}, SECRET), 404, "there is no run"),
+            (("/api/runs/abc",), 404, "there is nothing at /api/runs/abc"),
+            (("/api/runs?status=complete&status=running",), 400, "filter 'status' is given more than once"),
+        ]
+        for args, status, words in cases:
+            got, body = console.call(*args)
+            assert got == status and words in body["error"] and "\n" not in body["error"], (
+                args[0],
+                got,
+                body,
+            )
+        token = {"Authorization": f"Bearer {SECRET}"}
+
+        def post(body: bytes, kind="application/json", extra=None):
+            request = urllib.request.Request(
+                console.url + control, data=body, headers={**token, "Content-Type": kind, **(extra or {})}
+            )
+            try:
+                with urllib.request.urlopen(request, timeout=10) as response:
+                    return response.status, json.loads(response.read())
+            except urllib.error.HTTPError as exc:
+                return exc.code, json.loads(exc.read())
+
+        status, body = post(b'{"action": "hold", "vehicle": ' + b"9" * 5000 + b"}")  # past int's 4300 digits
+        assert status == 400 and "must be JSON" in body["error"]
+        status, body = post(b"[" * 5000 + b"]" * 5000)  # deeper than the parser goes
+        assert status == 400 and "must be JSON" in body["error"]
+        status, body = post(b" " * 50_000 + b'{"action": "pause"}')
+        assert status == 413 and "larger than 16384 bytes" in body["error"]
+        status, body = post(
+            b'{"action": "pause"}', kind="text/plain"
+        )  # a form or fetch another site may send
+        assert status == 415 and "application/json" in body["error"]
+        status, body = post(b'{"action": "pause"}', extra={"Sec-Fetch-Site": "same-site"})
+        assert status == 403 and "same-site request may not change anything" in body["error"]
+        request = urllib.request.Request(console.url + "/api/runs", method="DELETE")
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(request, timeout=10)
+        assert (
+            refused.value.code == 405
+            and "DELETE is not allowed on /api/runs" in json.loads(refused.value.read())["error"]
+        )
+        # a client that goes away in the middle of its body
+        where = urlsplit(console.url)
+        with socket.create_connection((where.hostname, where.port)) as raw:
+            raw.sendall(
+                f"POST {control} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {SECRET}\r\n"
+                'Content-Type: application/json\r\nContent-Length: 100\r\n\r\n{"action"'.encode()
+            )
+        assert console.call("/api/runs")[0] == 200  # still up
+    finally:
+        output = console.stop()
+    assert "Traceback" not in output and " 500" not in output, output
