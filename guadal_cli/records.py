@@ -36,9 +36,10 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from . import __version__
-from .errors import GuadalError
+from .errors import GuadalError, explain_validation_error
 
 #: wall seconds between rewrites of a running manifest's progress
 PROGRESS_EVERY_S = 3.0
@@ -212,18 +213,118 @@ def _hold_lock(directory: Path):
     return fh
 
 
+class _Checked(BaseModel):
+    # strict: a count written as text is as wrong as one written as a list; extra keys allowed:
+    # later versions may add some, these are the ones read
+    model_config = ConfigDict(extra="allow", strict=True)
+
+
+class _MapSummary(_Checked):
+    path: str | None = None
+    name: str | None = None
+    sha256: str | None = None
+    shape: list[int | None] | None = None
+    lat_bounds: list[float | None] | None = None
+    lon_bounds: list[float | None] | None = None
+    water_nodes: int | None = None
+    cell_size_m: float | None = None
+
+
+class _Plugin(_Checked):
+    name: str | None = None
+
+
+class _Resume(_Checked):
+    after_step: int = -1
+    kept_rows: dict[str, int] | None = None
+
+
+class ManifestContract(_Checked):
+    """The keys of ``manifest.json`` that guadal reads back (resume, ``db sync``, reports, sweeps),
+    with their types: a damaged or hand-edited manifest is refused in one sentence here rather
+    than met as a wrong type deep inside one of them."""
+
+    format: str
+    name: str | None = None
+    run_id: str | None = None
+    seed: int | None = None
+    level: str | None = None
+    mode: str | None = None
+    vehicles: int | None = Field(default=None, ge=0)
+    status: str | None = None
+    steps: int | None = Field(default=None, ge=0)
+    mission_file: str | None = None
+    mission_dir: str | None = None
+    started_at: str | None = None
+    ended_at: str | None = None
+    error: str | None = None
+    stop_reason: str | None = None
+    # absent in a manifest only if it was written before they existed; never null
+    map: _MapSummary = Field(default_factory=_MapSummary)
+    plugins: dict[str, _Plugin] = Field(default_factory=dict)
+    metric_columns: list[str] = Field(default_factory=list)
+    resumes: list[_Resume] = Field(default_factory=list)
+    events: list[dict] = Field(default_factory=list)
+    fleet: dict = Field(default_factory=dict)
+    progress: dict | None = None  # None until the first progress is written
+    final_metrics: dict | None = None  # None: the run ended before its first step
+    model: dict | None = None
+
+
 def read_manifest(directory: Path) -> dict:
-    """A run directory's manifest, or one sentence saying why it is not one."""
+    """A run directory's manifest (checked against :class:`ManifestContract`), or one sentence
+    saying why it is not one."""
     path = Path(directory) / "manifest.json"
     if not path.is_file():
         raise GuadalError(f"'{directory}' is not a run directory: it holds no manifest.json.")
     try:
         manifest = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise GuadalError(f"'{path}' is not readable JSON ({exc}).") from exc
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise GuadalError(f"run directory '{directory}' has an unreadable manifest.json ({exc}).") from None
     if not isinstance(manifest, dict) or manifest.get("format") != RUN_FORMAT:
         raise GuadalError(f"'{path}' is not a guadal run manifest: 'format' must be '{RUN_FORMAT}'.")
+    try:
+        ManifestContract.model_validate(manifest)
+    except ValidationError as exc:
+        raise GuadalError(
+            f"'{path}' is damaged: " + explain_validation_error(exc, ManifestContract, prefix="manifest")
+        ) from None
     return manifest
+
+
+#: sections of a resolved mission that readers of a run directory look inside
+_MISSION_SECTIONS = ("map", "environment", "algorithm", "fleet", "backend", "output")
+
+
+def read_resolved_mission(directory: Path) -> dict:
+    """A run's ``mission.resolved.yaml`` ({} where it has none), or one sentence on what is wrong.
+
+    Readers of finished runs (``db sync``, reports) look inside its sections; ``guadal resume``
+    checks it whole, as a mission.
+    """
+    path = Path(directory) / "mission.resolved.yaml"
+    if not path.is_file():
+        return {}
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    try:
+        mission = yaml.load(path.read_text(encoding="utf-8"), Loader=loader)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
+        raise GuadalError(
+            f"run directory '{directory}' has an unreadable mission.resolved.yaml ({type(exc).__name__})."
+        ) from None
+    mission = {} if mission is None else mission
+    sections_ok = isinstance(mission, dict) and all(
+        isinstance(mission.get(k) or {}, (dict, str))
+        if k == "map"
+        else isinstance(mission.get(k) or {}, dict)
+        for k in _MISSION_SECTIONS
+    )
+    if not sections_ok or not isinstance((mission.get("fleet") or {}).get("initial_positions") or [], list):
+        raise GuadalError(
+            f"'{path}' is damaged: it must be a mission mapping whose "
+            f"{', '.join(_MISSION_SECTIONS[1:])} are mappings and fleet.initial_positions a list."
+        )
+    return mission
 
 
 def write_manifest(directory: Path, manifest: dict) -> None:

@@ -27,7 +27,7 @@ from .fleet.base import Fleet, Measurement, Sensor
 from .fleet.local import LocalFleet
 from .graph import NavGraph
 from .mission import Prepared, prepare_dict, read_mission_file
-from .records import fmt, read_manifest
+from .records import CSV_FILES, LOCK_NAME, fmt, read_manifest
 
 
 @dataclass
@@ -216,11 +216,28 @@ def prepare_resume(directory: Path) -> Prepared:
     manifest = read_manifest(directory)
     if manifest.get("status") == "complete":
         raise GuadalError(f"run '{directory}' is complete; there is nothing to resume.")
+    _check_run_files(directory)
     resolved = directory / "mission.resolved.yaml"
     mission_dir = manifest.get("mission_dir") or str(Path(str(manifest.get("mission_file", ""))).parent)
     prep = prepare_dict(read_mission_file(resolved), Path(mission_dir), resolved, check_output=False)
     prep.resume_nodes = last_positions(directory, prep.mission.fleet.vehicles)
     return prep
+
+
+#: what every run directory holds from its first moment: without them there is no record to go on from
+_REQUIRED_FILES = ("mission.resolved.yaml", "metrics.csv", "trajectory.csv", "measurements.csv")
+
+
+def _check_run_files(directory: Path) -> None:
+    """One sentence for a run directory whose files were removed or replaced by folders."""
+    for name in (*_REQUIRED_FILES, *CSV_FILES, "fields.csv", LOCK_NAME):
+        path = directory / name
+        if path.exists() and not path.is_file():
+            raise GuadalError(f"run directory '{directory}': '{name}' is not a file; it cannot be resumed.")
+        if name in _REQUIRED_FILES and not path.exists():
+            raise GuadalError(
+                f"run directory '{directory}' has no {name}, which every run writes first; it cannot be resumed."
+            )
 
 
 def last_positions(directory: Path, vehicles: int) -> list[int] | None:

@@ -9,13 +9,11 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
 from ..errors import GuadalError
+from ..records import read_manifest, read_resolved_mission
 from .store import count_rows, forget_replaced_rows, parse_cell, save_rows, save_run
 
 SPOOL_NAME = "database.spool.jsonl"
@@ -52,24 +50,7 @@ def read_csv_rows(path: Path) -> tuple[list[str], list[list]]:
 
 def read_run(directory: Path) -> tuple[dict, dict]:
     """The manifest and resolved mission of a run directory, or one sentence on what is wrong."""
-    directory = Path(directory)
-    manifest_path = directory / "manifest.json"
-    if not manifest_path.is_file():
-        raise GuadalError(f"{directory}: not a run directory (it has no manifest.json).")
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise GuadalError(f"{manifest_path}: not valid JSON ({exc}).") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != "guadal-run":
-        raise GuadalError(f"{manifest_path}: not a guadal run manifest (format must be 'guadal-run').")
-    mission = {}
-    resolved = directory / "mission.resolved.yaml"
-    if resolved.is_file():
-        try:
-            mission = yaml.safe_load(resolved.read_text()) or {}
-        except yaml.YAMLError:
-            raise GuadalError(f"{resolved}: not valid YAML.") from None
-    return manifest, mission
+    return read_manifest(directory), read_resolved_mission(directory)
 
 
 def import_run(engine, directory: Path) -> Imported:

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from ..errors import GuadalError
-from ..records import RUN_FORMAT
+from ..records import RUN_FORMAT, read_manifest, read_resolved_mission
 
 #: columns every metrics.csv has before the environment's own task metrics
 GENERAL_METRICS = ("step", "time_s", "total_distance", "samples", "coverage")
@@ -182,21 +182,7 @@ class Run:
 
 
 def _read_run(directory: Path) -> Run:
-    manifest_path = directory / "manifest.json"
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise GuadalError(f"run directory '{directory}' has an unreadable manifest.json ({exc}).") from exc
-    if not isinstance(manifest, dict) or manifest.get("format") != RUN_FORMAT:
-        raise GuadalError(f"'{manifest_path}' is not a guadal run manifest: 'format' must be '{RUN_FORMAT}'.")
-    mission_path = directory / "mission.resolved.yaml"
-    try:
-        mission = yaml.safe_load(mission_path.read_text()) if mission_path.is_file() else {}
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise GuadalError(
-            f"run directory '{directory}' has an unreadable mission.resolved.yaml ({exc})."
-        ) from exc
-    return Run(path=directory, manifest=manifest, mission=mission if isinstance(mission, dict) else {})
+    return Run(path=directory, manifest=read_manifest(directory), mission=read_resolved_mission(directory))
 
 
 def find_runs(paths: list[Path]) -> list[Run]:
