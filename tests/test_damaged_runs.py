@@ -74,7 +74,11 @@ def test_a_damaged_manifest_is_one_sentence_to_db_sync_report_and_resume(finishe
 
 def test_the_commands_say_it_without_a_crash_log(finished, tmp_path):
     run = damaged_copy(finished, tmp_path / "run", "vehicles", "x")
-    for args in (("db", "sync", run, "--db", f"sqlite:///{tmp_path / 'g.db'}"), ("report", run), ("resume", run)):
+    for args in (
+        ("db", "sync", run, "--db", f"sqlite:///{tmp_path / 'g.db'}"),
+        ("report", run),
+        ("resume", run),
+    ):
         out = run_cli(*args)
         assert out.returncode == 2, (args, out.stderr)
         assert "manifest.vehicles" in out.stderr and "Traceback" not in out.stderr
