@@ -147,6 +147,10 @@ def with_value(data: dict, dotted: str, value) -> dict:
     return top
 
 
+#: seeds one sweep may list: a million missions is days of a cluster; more is a typo
+MAX_SEEDS = 1_000_000
+
+
 def parse_seeds(value) -> list[int] | None:
     if value is None or isinstance(value, list):
         if value is not None and not value:
@@ -159,7 +163,12 @@ def parse_seeds(value) -> list[int] | None:
         raise GuadalError(
             f"seeds: give a range 'A..B' with A <= B (e.g. 1..100) or a list of integers (got {value!r})."
         )
-    return list(range(int(match[1]), int(match[2]) + 1))
+    first, last = int(match[1]), int(match[2])
+    if last - first + 1 > MAX_SEEDS:
+        raise GuadalError(
+            f"seeds: the range {first}..{last} holds {last - first + 1:,} seeds; one sweep takes at most {MAX_SEEDS:,}."
+        )
+    return list(range(first, last + 1))
 
 
 def _check_axes(grid: dict, zipped: dict, seeds) -> None:

@@ -189,6 +189,13 @@ def test_a_sweep_of_real_boats_is_refused_in_one_sentence(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_seed_range_of_astronomical_size_is_one_sentence_not_an_out_of_memory(tmp_path):
+    path = write_sweep(tmp_path, seeds="0..99999999999")
+    proc = run_cli("sweep", "validate", path)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and "this is a bug" not in proc.stderr
+    assert "holds 100,000,000,000 seeds; one sweep takes at most 1,000,000" in proc.stderr
+
+
 def test_one_failing_mission_does_not_stop_the_others_and_is_retried_up_to_the_limit(tmp_path):
     (tmp_path / "flaky.py").write_text(FLAKY_PLANNER)
     path = write_sweep(
