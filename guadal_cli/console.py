@@ -66,17 +66,28 @@ class GuadalGroup(TyperGroup):
             raise typer.Exit(EXIT_BAD_INPUT) from None
         except (typer.Exit, typer.Abort, BrokenPipeError):
             raise
+        except OSError as exc:
+            if exc.filename is None:  # not about a path: not the user's to mend
+                return self._bug(ctx, exc)
+            _say(
+                f"[bold red]error:[/] cannot use '{escape(str(exc.filename))}': {escape(exc.strerror or str(exc))}."
+            )
+            raise typer.Exit(EXIT_BAD_INPUT) from None
         except Exception as exc:
             if _is_click_exception(exc):
                 raise
-            command = " ".join(["guadal", *_command_path(ctx)])
-            log = _write_crash_log(command, exc)
-            where = f"the details are in {log}" if log else "no log could be written"
-            _say(
-                f"[bold red]error:[/] {escape(command)} failed unexpectedly ({escape(_summary(exc))}); "
-                f"this is a bug, please report it with the log: {escape(where)}."
-            )
-            raise typer.Exit(EXIT_BUG) from None
+            return self._bug(ctx, exc)
+
+    @staticmethod
+    def _bug(ctx, exc: Exception):
+        command = " ".join(["guadal", *_command_path(ctx)])
+        log = _write_crash_log(command, exc)
+        where = f"the details are in {log}" if log else "no log could be written"
+        _say(
+            f"[bold red]error:[/] {escape(command)} failed unexpectedly ({escape(_summary(exc))}); "
+            f"this is a bug, please report it with the log: {escape(where)}."
+        )
+        raise typer.Exit(EXIT_BUG) from None
 
 
 def _say(markup: str) -> None:

@@ -135,3 +135,43 @@ def test_library_errors_name_fields_and_the_cli_names_its_flags(tmp_path):
     )
     assert proc.returncode == 2
     assert "--cell-size must be between 0.1 and 1000 metres (got -1)" in proc.stderr
+
+
+def test_a_path_the_system_refuses_is_one_sentence_naming_it_not_a_bug(tmp_path, write_mission):
+    """An output in a folder that does not exist, or a folder where a file should be: the user's
+    path, said as such (it used to be a crash log, "this is a bug")."""
+    db = f"sqlite:///{tmp_path / 'g.db'}"
+    env = {"XDG_STATE_HOME": str(tmp_path / "state")}
+    mission = write_mission(base_mission(fleet={"vehicles": 1, "max_distance": 20.0}))
+    assert run_cli("run", mission, "-o", tmp_path / "run", "-q", "--db", db).returncode == 0
+    for output in (tmp_path / "no-such-folder" / "samples.csv", tmp_path):
+        proc = run_cli("db", "samples", "--map", "urban_lake", "--db", db, "-o", output, env=env)
+        assert proc.returncode == 2, proc.stderr
+        assert proc.stderr.strip().splitlines() == [
+            f"error: cannot use '{output}': "
+            + ("No such file or directory." if output != tmp_path else "Is a directory.")
+        ]
+    proc = run_cli("db", "export", "9" * 30, "-o", tmp_path / "out", "--db", db, env=env)
+    assert proc.returncode == 2 and f"no run '{'9' * 30}' in the database" in proc.stderr
+    assert not (tmp_path / "state").exists()
+
+
+def test_files_of_the_wrong_kind_are_one_sentence(tmp_path):
+    from guadal_cli.channel.credentials import fleet_key
+    from guadal_cli.maps.format import load_map
+    from guadal_cli.sweep.manifest import read_sweep_manifest
+
+    binary = tmp_path / "key.bin"
+    binary.write_bytes(b"\x80\xcc" * 40)
+    with pytest.raises(GuadalError, match="backend.key_file: '.*' is not UTF-8 text"):
+        fleet_key(file=binary, what="backend.key")
+    huge = tmp_path / "huge.json"
+    huge.write_text('{"format": "guadal-map", "version": ' + "9" * 5000 + "}")
+    with pytest.raises(GuadalError, match="is not readable JSON"):
+        load_map(huge)
+    for combinations in (None, 5, [["a"]], [{"id": ["a"]}]):
+        (tmp_path / "sweep.json").write_text(
+            json.dumps({"format": "guadal-sweep", "combinations": combinations})
+        )
+        with pytest.raises(GuadalError, match="is damaged: 'combinations' must be a list of entries"):
+            read_sweep_manifest(tmp_path)

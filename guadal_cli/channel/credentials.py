@@ -184,9 +184,13 @@ def read_secret(*, file: str | Path | None = None, env: str | None = None, what:
     if file is not None:
         path = Path(file).expanduser()
         try:
-            value = path.read_text().strip()
+            value = path.read_text(encoding="utf-8").strip()
         except OSError as exc:
             raise GuadalError(f"{what}_file: cannot read '{path}' ({exc.strerror or exc}).") from exc
+        except UnicodeDecodeError:
+            raise GuadalError(
+                f"{what}_file: '{path}' is not UTF-8 text; a secret is one line of text."
+            ) from None
         if not value:
             raise GuadalError(f"{what}_file: '{path}' is empty.")
         return value

@@ -149,7 +149,7 @@ def get_run(engine, ref: str | int) -> dict:
     """One run with its manifest and resolved mission, by id, uid, or run directory (path or name)."""
     text = str(ref).rstrip("/")
     clauses = [Run.uid == text, Run.directory == text, Run.directory.like("%/" + text)]
-    if text.isdigit():
+    if text.isdigit() and len(text) <= 18:  # a row id; longer digit strings fit no 64-bit id
         clauses.append(Run.id == int(text))
     stmt = (
         select(*RUN_COLUMNS, Run.manifest, Run.mission, Run.metric_columns, Run.field_columns, Run.map_id)

@@ -313,7 +313,7 @@ def load_map(path: str | Path) -> Map:
                 f"map file '{shown}' is {size:,} bytes; map files are at most {MAX_MAP_BYTES:,} bytes."
             )
         data = json.loads(path.read_text(encoding="utf-8-sig"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # ValueError: not UTF-8, not JSON, numbers past 4300 digits
         reason = getattr(exc, "strerror", None) or exc
         raise GuadalError(f"map file '{shown}' is not readable JSON ({reason}).") from exc
     except RecursionError as exc:

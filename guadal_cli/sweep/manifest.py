@@ -46,6 +46,13 @@ def read_sweep_manifest(directory: Path) -> dict | None:
         raise GuadalError(f"'{path}' is unreadable ({exc}); it is the sweep's manifest.") from exc
     if not isinstance(data, dict) or data.get("format") != SWEEP_FORMAT:
         raise GuadalError(f"'{path}' is not a guadal sweep manifest: 'format' must be '{SWEEP_FORMAT}'.")
+    entries = data.get("combinations", [])
+    if not isinstance(entries, list) or not all(
+        isinstance(e, dict) and isinstance(e.get("id"), str) for e in entries
+    ):
+        raise GuadalError(
+            f"'{path}' is damaged: 'combinations' must be a list of entries, each with a text 'id'."
+        )
     return data
 
 
