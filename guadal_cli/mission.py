@@ -274,6 +274,10 @@ def read_mission_file(path: Path) -> dict:
         raise GuadalError(f"{where}: {exc}") from exc
     except RecursionError as exc:  # a deep structure inside one flow scalar, say
         raise GuadalError(f"{where}: nested too deeply for a mission file.") from exc
+    except ValueError as exc:  # an integer past Python's 4300 digits
+        raise GuadalError(
+            f"{where}: a number in it is too long to read ({str(exc).split(':')[0]})."
+        ) from None
     if not isinstance(data, dict):
         raise GuadalError(
             f"{where}: a mission file must be a YAML mapping of sections (name, map, environment, ...)."

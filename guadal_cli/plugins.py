@@ -84,6 +84,8 @@ def import_object(target: str, owner: str, noun: str = "plugin", example: str = 
     Used for plugins named by their import path and for policies given as ``module:function``.
     """
     module_name, _, attr = target.partition(":")
+    if not module_name or not attr and ":" in target:
+        raise GuadalError(f"{owner} names no module and object; give '{example}'.")
     if module_name.split(".")[0] in sys.stdlib_module_names:
         raise GuadalError(
             f"{owner} names '{module_name}', a module of Python's standard library, which holds no "
@@ -91,7 +93,7 @@ def import_object(target: str, owner: str, noun: str = "plugin", example: str = 
         )
     try:
         obj = importlib.import_module(module_name)
-    except ImportError as exc:
+    except (ImportError, ValueError, TypeError) as exc:  # '.x', '..': names that are no module
         raise GuadalError(f"{owner} could not be imported from module '{module_name}': {exc}.") from exc
     for part in attr.split("."):
         try:

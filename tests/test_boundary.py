@@ -175,3 +175,15 @@ def test_files_of_the_wrong_kind_are_one_sentence(tmp_path):
         )
         with pytest.raises(GuadalError, match="is damaged: 'combinations' must be a list of entries"):
             read_sweep_manifest(tmp_path)
+
+
+def test_mission_numbers_past_4300_digits_and_in_memory_databases_are_one_sentence(tmp_path):
+    huge = tmp_path / "huge.yaml"
+    huge.write_text("name: x\nseed: " + "9" * 5000 + "\n")
+    proc = run_cli("validate", huge)
+    assert proc.returncode == 2 and "a number in it is too long to read" in proc.stderr
+    from guadal_cli.db.engine import check_url
+
+    for url in ("sqlite://", "sqlite:///:memory:"):
+        with pytest.raises(GuadalError, match="is a database in memory, gone when the process ends"):
+            check_url(url)

@@ -35,6 +35,8 @@ def test_every_installed_plugin_honours_its_contract(kind):
             "is a dict, not a subclass of guadal_cli.fleet.base.Backend",
         ),
         ("sensor", "guadal_cli.nowhere:Probe", "could not be imported from module 'guadal_cli.nowhere'"),
+        ("algorithm", ":", "names no module and object; give 'package.module:Class'"),
+        ("algorithm", ".x:Y", "could not be imported from module '.x'"),
     ],
 )
 def test_anything_but_a_plugin_is_one_sentence(kind, name, expected):

@@ -54,6 +54,10 @@ def _parse(url: str):
             f"'{_shape(url)}' is not a database URL; use sqlite:///FILE or postgresql://USER@HOST/DATABASE."
         ) from None
     backend = parsed.get_backend_name()
+    if backend == "sqlite" and parsed.database in (None, "", ":memory:"):
+        raise GuadalError(
+            f"'{_shape(url)}' is a database in memory, gone when the process ends; use sqlite:///FILE."
+        )
     if backend not in ("sqlite", "postgresql"):
         raise GuadalError(
             f"database '{backend}' is not supported; use sqlite:///FILE or postgresql://USER@HOST/DATABASE."
@@ -73,7 +77,7 @@ def _shape(url: str) -> str:
 
 def check_url(url: str) -> None:
     """Raise the one-sentence error a bad URL or a missing driver would cause, before any work starts."""
-    if url.startswith("sqlite:///"):
+    if url.startswith("sqlite:///") and url[len("sqlite:///") :] not in ("", ":memory:"):
         return  # the default's form: nothing to check, nothing to load
     if _parse(url).get_backend_name() == "postgresql":
         try:
