@@ -26,6 +26,8 @@ _FLAGS = {
     "serial": "--serial",
     "sysid": "--sysid",
     "track_rate": "--track-rate",
+    "gps_noise_m": "--gps-noise",
+    "current_en": "--current",
 }
 
 

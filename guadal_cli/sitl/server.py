@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import math
 import selectors
 import socket
 import sys
@@ -35,6 +36,8 @@ TRACK_CATCH_UP_S = 10.0
 PHYSICS_TICK_S = 0.02
 #: system ids 1..250; the top of the range is where ground stations live (255 by habit)
 MAX_VEHICLES = 250
+#: simulated seconds per wall second at most: 50 Hz physics is then 50,000 ticks a wall second
+MAX_SPEEDUP = 1000.0
 #: metres east between consecutive default homes
 HOME_SPACING_M = 5.0
 
@@ -110,8 +113,17 @@ class SitlServer:
                 f"port {options.udp_out[1]} leaves no port for vehicle {options.vehicles}; use 1..{65535 - last}.",
                 field="udp_out",
             )
-        if options.speedup <= 0:
-            raise GuadalError(f"must be positive (got {options.speedup}).", field="speedup")
+        for name in ("speedup", "max_speed", "gps_noise_m", "max_rate", "track_rate"):
+            if not math.isfinite(getattr(options, name)):
+                raise GuadalError(f"must be a finite number (got {getattr(options, name)}).", field=name)
+        if not all(math.isfinite(v) for v in options.current_en):
+            raise GuadalError(f"must be finite E,N m/s (got {options.current_en}).", field="current_en")
+        if not 0 < options.speedup <= MAX_SPEEDUP:
+            raise GuadalError(
+                f"must be positive and at most {MAX_SPEEDUP:g} (got {options.speedup:g}): beyond it the "
+                "boats' physics cannot keep up with the clock.",
+                field="speedup",
+            )
         if options.max_speed <= 0:
             raise GuadalError(f"must be positive (got {options.max_speed}).", field="max_speed")
         if options.max_rate <= 0:

@@ -16,6 +16,11 @@ BAD_RUNS = {
     "home": ["--home", "north-of-here", "--base-port", "0"],
     "homes": ["--vehicles", "3", "--homes", "10,20;10.001,20", "--base-port", "0"],
     "speedup": ["--speedup", "-5", "--base-port", "0"],
+    # past 1000 the physics could not keep up: 1e16 spun at 100 % CPU, deaf to SIGTERM
+    "speedup_huge": ["--speedup", "1e16", "--base-port", "0"],
+    "speedup_nan": ["--speedup", "nan", "--base-port", "0"],
+    "max_speed_inf": ["--max-speed", "inf", "--base-port", "0"],
+    "current_nan": ["--current", "nan,0", "--base-port", "0"],
 }
 
 
@@ -55,6 +60,13 @@ def test_homes_must_match_the_number_of_vehicles(bad_runs):
 
 def test_speedup_must_be_positive(bad_runs):
     assert "--speedup must be positive" in _refused(bad_runs["speedup"])
+
+
+def test_speeds_and_rates_must_be_finite_and_the_speedup_bounded(bad_runs):
+    assert "--speedup must be positive and at most 1000 (got 1e+16)" in _refused(bad_runs["speedup_huge"])
+    assert "--speedup must be a finite number (got nan)" in _refused(bad_runs["speedup_nan"])
+    assert "--max-speed must be a finite number (got inf)" in _refused(bad_runs["max_speed_inf"])
+    assert "--current must be finite E,N m/s" in _refused(bad_runs["current_nan"])
 
 
 def test_busy_port_is_reported_not_raised(bad_runs):

@@ -95,7 +95,9 @@ class SitlConfig(RemoteConfig):
     launch: bool = Field(
         default=False, description="Start broker, emulator and bridges for this run, and stop them after."
     )
-    speedup: float = Field(default=50.0, gt=0, description="Emulator time speed-up when launching.")
+    speedup: float = Field(
+        default=50.0, gt=0, le=1000, description="Emulator time speed-up when launching (at most 1000)."
+    )
     broker_kind: Literal["auto", "mosquitto", "embedded"] = Field(
         default="auto", description="Broker to launch: Mosquitto if installed (auto), or the embedded one."
     )
