@@ -122,11 +122,11 @@ class FileField(GroundTruth):
             path = Path(base_dir) / path
         if not path.is_file():
             raise GuadalError(f"file '{path}' does not exist.", field="path")
-        text = path.read_text()
-        delimiter = "," if "," in text else None
         try:
+            text = path.read_text(encoding="utf-8")
+            delimiter = "," if "," in text else None
             grid = np.genfromtxt(path, delimiter=delimiter, dtype=float)
-        except ValueError as exc:
+        except ValueError as exc:  # UnicodeDecodeError too: a binary file is no grid
             raise GuadalError(f"'{path}' is not a grid of numbers ({exc}).", field="path") from exc
         if grid.shape != graph.map.shape:
             raise GuadalError(

@@ -52,6 +52,9 @@ def test_external_truth_file_is_read_on_the_map_grid(write_mission, tmp_path):
         and "environment.ground_truth.path" in proc.stderr
         and "must match" in proc.stderr
     )
+    (tmp_path / "survey.csv").write_bytes(bytes(range(128, 256)) * 3)  # a binary file: no grid at all
+    with pytest.raises(GuadalError, match="'.*survey.csv' is not a grid of numbers"):
+        prepare(mission)
 
 
 @pytest.mark.parametrize("model", ["exact", "local"])
