@@ -84,7 +84,7 @@ def import_object(target: str, owner: str, noun: str = "plugin", example: str = 
     Used for plugins named by their import path and for policies given as ``module:function``.
     """
     module_name, _, attr = target.partition(":")
-    if not module_name or not attr and ":" in target:
+    if not module_name or (not attr and ":" in target):
         raise GuadalError(f"{owner} names no module and object; give '{example}'.")
     if module_name.split(".")[0] in sys.stdlib_module_names:
         raise GuadalError(

@@ -145,11 +145,15 @@ def list_runs(
         return [_plain(r) for r in conn.execute(stmt)]
 
 
+#: the largest row id: ids are 64-bit integers in both databases
+MAX_ROW_ID = 2**63 - 1
+
+
 def get_run(engine, ref: str | int) -> dict:
     """One run with its manifest and resolved mission, by id, uid, or run directory (path or name)."""
     text = str(ref).rstrip("/")
     clauses = [Run.uid == text, Run.directory == text, Run.directory.like("%/" + text)]
-    if text.isdigit() and len(text) <= 18:  # a row id; longer digit strings fit no 64-bit id
+    if text.isdigit() and len(text) <= 19 and int(text) <= MAX_ROW_ID:  # a larger number is no row id
         clauses.append(Run.id == int(text))
     stmt = (
         select(*RUN_COLUMNS, Run.manifest, Run.mission, Run.metric_columns, Run.field_columns, Run.map_id)

@@ -35,6 +35,7 @@ from starlette.responses import FileResponse, JSONResponse, RedirectResponse, Re
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
+from ..db import queries
 from ..db.controls import ControlRefused, request_control
 from ..errors import GuadalError
 from .reader import ConsoleReader, Cursor
@@ -48,8 +49,6 @@ POLL_S = 0.2
 KEEPALIVE_S = 15.0
 #: the most a request body may hold: a control is ~40 bytes, the login form ~200
 MAX_BODY = 16 * 1024
-#: run ids are the database's 64-bit row ids
-MAX_RUN_ID = 2**63 - 1
 
 
 def _error(status: int, sentence: str) -> JSONResponse:
@@ -98,7 +97,7 @@ def _refuse_cross_site(request: Request) -> None:
 
 def _run_id(request: Request) -> int:
     run_id = request.path_params["run_id"]
-    if not 0 < run_id <= MAX_RUN_ID:
+    if not 0 < run_id <= queries.MAX_ROW_ID:
         raise Refused(404, f"there is no run {run_id} in this database.")
     return run_id
 
