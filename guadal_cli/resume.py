@@ -230,7 +230,7 @@ _REQUIRED_FILES = ("mission.resolved.yaml", "metrics.csv", "trajectory.csv", "me
 
 def _check_run_files(directory: Path) -> None:
     """One sentence for a run directory whose files were removed or replaced by folders."""
-    for name in (*_REQUIRED_FILES, *CSV_FILES, "fields.csv", LOCK_NAME):
+    for name in dict.fromkeys((*_REQUIRED_FILES, *CSV_FILES, "fields.csv", LOCK_NAME)):
         path = directory / name
         if path.exists() and not path.is_file():
             raise GuadalError(f"run directory '{directory}': '{name}' is not a file; it cannot be resumed.")
